@@ -1,0 +1,128 @@
+"""Coordinate frames and rotations used everywhere in the core.
+
+Frames (all right-handed, metres and radians unless a name says otherwise):
+
+| name   | axes                              | what it is                                  |
+|--------|-----------------------------------|---------------------------------------------|
+| ned    | x north, y east, z down           | local-level world frame (MAVLink LOCAL_NED) |
+| body   | x forward, y right, z down (FRD)  | the vehicle                                 |
+| cam    | x optical axis, y right, z down   | "camera FRD" of the scenario format         |
+| cv     | x right, y down, z optical axis   | OpenCV camera coordinates                   |
+
+Rotation matrices are named ``R_a_from_b`` so that ``v_a = R_a_from_b @ v_b`` and
+products read right to left: ``R_ned_from_cam = R_ned_from_body @ R_body_from_cam``.
+
+Euler angles follow MAVLink: ZYX (yaw, then pitch, then roll) of the body relative to
+NED, ``R_ned_from_body = Rz(yaw) @ Ry(pitch) @ Rx(roll)``. The camera mount uses the same
+composition, ``R_body_from_cam = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
+
+Quaternions here are scalar-first ``(w, x, y, z)`` like MAVLink; SciPy's are
+scalar-last, and the conversion happens only in this module.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+FloatArray = NDArray[np.float64]
+
+#: OpenCV camera axes expressed in camera FRD: v_cam = R_cam_from_cv @ v_cv.
+R_CAM_FROM_CV: FloatArray = np.array(
+    [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], dtype=np.float64
+)
+R_CV_FROM_CAM: FloatArray = R_CAM_FROM_CV.T.copy()
+
+
+def rot_from_euler_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> FloatArray:
+    """Return ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (3×3), MAVLink's Euler convention."""
+    cr, sr = np.cos(roll_rad), np.sin(roll_rad)
+    cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
+    cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ],
+        dtype=np.float64,
+    )
+
+
+def euler_zyx_from_rot(R_a_from_b: FloatArray) -> tuple[float, float, float]:
+    """Inverse of :func:`rot_from_euler_zyx`: ``(roll_rad, pitch_rad, yaw_rad)``."""
+    pitch = float(np.arcsin(np.clip(-R_a_from_b[2, 0], -1.0, 1.0)))
+    roll = float(np.arctan2(R_a_from_b[2, 1], R_a_from_b[2, 2]))
+    yaw = float(np.arctan2(R_a_from_b[1, 0], R_a_from_b[0, 0]))
+    return roll, pitch, yaw
+
+
+def mount_rotation(mount_rpy_deg: tuple[float, float, float] | list[float]) -> FloatArray:
+    """``R_body_from_cam`` from the scenario's ``mount_rpy_deg = [roll, pitch, yaw]``."""
+    r, p, y = np.deg2rad(np.asarray(mount_rpy_deg, dtype=np.float64))
+    return rot_from_euler_zyx(float(r), float(p), float(y))
+
+
+def quat_wxyz_from_rot(R_a_from_b: FloatArray) -> FloatArray:
+    """Scalar-first unit quaternion ``(w, x, y, z)`` of a rotation matrix."""
+    x, y, z, w = Rotation.from_matrix(R_a_from_b).as_quat()
+    q = np.array([w, x, y, z], dtype=np.float64)
+    return q if q[0] >= 0 else -q
+
+
+def rot_from_quat_wxyz(q_wxyz: FloatArray) -> FloatArray:
+    """Rotation matrix of a scalar-first quaternion (normalised first)."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    norm = float(np.linalg.norm(q))
+    if not np.isfinite(norm) or norm < 1e-9:
+        return np.full((3, 3), np.nan)
+    w, x, y, z = q / norm
+    return np.asarray(Rotation.from_quat([x, y, z, w]).as_matrix(), dtype=np.float64)
+
+
+def slerp_rotation(R0: FloatArray, R1: FloatArray, s: float) -> FloatArray:
+    """Spherical interpolation between two rotations, ``s`` in [0, 1] (extrapolates outside).
+
+    Computed as ``R0 @ exp(s · log(R0ᵀ R1))``, the constant-angular-rate path.
+    """
+    rel = Rotation.from_matrix(R0.T @ R1).as_rotvec()
+    step = Rotation.from_rotvec(s * rel).as_matrix()
+    return np.asarray(R0 @ step, dtype=np.float64)
+
+
+def normalize(v: FloatArray) -> FloatArray:
+    """Unit vectors along the last axis; zero vectors become NaN."""
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.where(n > 0, n, np.nan)
+
+
+def azel_from_bearing(bearing: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Azimuth and elevation (radians) of unit bearings in an FRD-like frame (N, E, D).
+
+    Azimuth is clockwise from the x axis seen from above (towards y), elevation is
+    positive up (towards -z). Accepts shape (3,) or (N, 3).
+    """
+    b = np.asarray(bearing, dtype=np.float64)
+    az = np.arctan2(b[..., 1], b[..., 0])
+    el = np.arctan2(-b[..., 2], np.hypot(b[..., 0], b[..., 1]))
+    return az, el
+
+
+def bearing_from_azel(az_rad: FloatArray, el_rad: FloatArray) -> FloatArray:
+    """Unit bearing ``(cos el cos az, cos el sin az, -sin el)``; inverse of :func:`azel_from_bearing`."""
+    az = np.asarray(az_rad, dtype=np.float64)
+    el = np.asarray(el_rad, dtype=np.float64)
+    ce = np.cos(el)
+    return np.stack([ce * np.cos(az), ce * np.sin(az), -np.sin(el)], axis=-1)
+
+
+def angle_between(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Angle (radians) between vectors along the last axis, stable near 0 and π."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    dot = np.sum(a * b, axis=-1)
+    return np.arctan2(cross, dot)

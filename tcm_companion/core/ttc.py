@@ -1,0 +1,98 @@
+"""Time to contact from looming, and the collision-course test.
+
+For a sphere of radius r at range d, ``sin α = r/d``, so ``d/dt ln sin α = -ḋ/d = 1/τ``:
+the time to contact τ (range over closing speed, centre range) is the inverse slope of
+``ln sin α`` against time. The slope is fitted robustly (Theil–Sen: the median of all
+pairwise slopes) over a short recent window, so a single bad radius measurement cannot
+swing it.
+
+Collision course: constant bearing with decreasing range. With the bearing's angular
+rate ω in the local-level frame, an object on a straight relative path passes at
+``d_min ≈ d·ω·τ``; in units of the object's own radius that is ``ω·τ / sin α``, which
+needs no range. The flag is raised when that predicted miss distance is small.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .frames import FloatArray
+
+
+@dataclass(frozen=True)
+class TTCConfig:
+    window_frames: int = 12  # frames in the looming fit (~0.5 s at 25 Hz)
+    min_frames: int = 6  # fewer observations than this: no estimate
+    max_ttc_s: float = 30.0  # slower looming than this counts as "not approaching"
+    min_significance: float = 2.0  # slope must exceed this many of its own spreads
+    collision_miss_radii: float = 4.0  # predicted miss within this many object radii
+    collision_max_ttc_s: float = 10.0
+
+
+@dataclass(frozen=True)
+class TTCEstimate:
+    ttc_s: float  # NaN when not approaching
+    slope_per_s: float  # d/dt ln sin α
+    miss_radii: float  # predicted miss distance over object radius (NaN if unknown)
+    collision_course: bool
+
+
+def theil_sen_slope(t_s: FloatArray, y: FloatArray) -> tuple[float, float]:
+    """Median pairwise slope and a robust spread of the pairwise slopes (MAD·1.4826)."""
+    t = np.asarray(t_s, dtype=np.float64)
+    v = np.asarray(y, dtype=np.float64)
+    i, j = np.triu_indices(len(t), k=1)
+    dt = t[j] - t[i]
+    keep = dt > 0
+    if not np.any(keep):
+        return math.nan, math.nan
+    slopes = (v[j] - v[i])[keep] / dt[keep]
+    med = float(np.median(slopes))
+    spread = 1.4826 * float(np.median(np.abs(slopes - med)))
+    return med, spread
+
+
+def estimate_ttc(
+    t_s: FloatArray,
+    alpha_rad: FloatArray,
+    bearing_ned: FloatArray,
+    config: TTCConfig = TTCConfig(),
+) -> TTCEstimate:
+    """TTC and collision flag from the recent samples of one track.
+
+    ``t_s`` (N,) times in seconds, ``alpha_rad`` (N,) angular radii, ``bearing_ned`` (N, 3)
+    unit bearings in the local-level frame; only the last ``config.window_frames`` are used.
+    """
+    t = np.asarray(t_s, dtype=np.float64)[-config.window_frames :]
+    a = np.asarray(alpha_rad, dtype=np.float64)[-config.window_frames :]
+    b = np.asarray(bearing_ned, dtype=np.float64)[-config.window_frames :]
+    ok = np.isfinite(t) & np.isfinite(a) & (a > 0)
+    nothing = TTCEstimate(math.nan, math.nan, math.nan, False)
+    if ok.sum() < config.min_frames:
+        return nothing
+    t, a, b = t[ok], a[ok], b[ok]
+    slope, spread = theil_sen_slope(t - t[0], np.log(np.sin(a)))
+    if not math.isfinite(slope):
+        return nothing
+    # The spread of pairwise slopes shrinks with the number of pairs; compare the slope
+    # with the standard error of a median over the window, not with a single pair.
+    stderr = spread / math.sqrt(len(t))
+    approaching = slope > 1.0 / config.max_ttc_s and slope > config.min_significance * stderr
+    if not approaching:
+        return TTCEstimate(math.nan, slope, math.nan, False)
+    ttc = 1.0 / slope
+    # Bearing rate from the first and last thirds (robust to one bad bearing).
+    n3 = max(1, len(t) // 3)
+    b_first = np.median(b[:n3], axis=0)
+    b_last = np.median(b[-n3:], axis=0)
+    dt = float(np.median(t[-n3:]) - np.median(t[:n3]))
+    if dt <= 0:
+        return TTCEstimate(ttc, slope, math.nan, False)
+    cosang = float(np.dot(b_first, b_last) / (np.linalg.norm(b_first) * np.linalg.norm(b_last)))
+    omega = math.acos(max(-1.0, min(1.0, cosang))) / dt
+    miss = omega * ttc / math.sin(float(np.median(a[-n3:])))
+    collision = miss < config.collision_miss_radii and ttc < config.collision_max_ttc_s
+    return TTCEstimate(ttc, slope, miss, collision)

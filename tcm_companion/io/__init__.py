@@ -1,0 +1,1 @@
+"""Edges: files, transports and devices around the pure core."""

@@ -1,0 +1,345 @@
+"""Read ``tcm-scenario/1`` directories (see shared/docs/scenario-format.md).
+
+Every check that fails raises :class:`ScenarioError` with the file, the line (where the
+file has lines) and the problem, so a hand-built scenario can be fixed from the message
+alone. Frames are read lazily, one at a time, in order.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..core.camera import CameraModel, CameraModelError, camera_from_dict
+from ..core.telemetry import AttitudeSample, PositionSample, TelemetrySample
+from .samples import sample_from_message
+from .tlog import TlogError, TlogStats, read_tlog
+
+FORMAT = "tcm-scenario/1"
+FRAMES_HEADER = ["frame", "t_us"]
+TRUTH_HEADER = [
+    "frame",
+    "object_id",
+    "moving",
+    "obj_n",
+    "obj_e",
+    "obj_d",
+    "obj_radius_m",
+    "veh_n",
+    "veh_e",
+    "veh_d",
+]
+
+
+class ScenarioError(ValueError):
+    """A scenario is malformed; the message names the file, line and problem."""
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Ground truth rows as arrays (one entry per frame and object)."""
+
+    frame: np.ndarray  # int64
+    object_id: np.ndarray  # int64
+    moving: np.ndarray  # bool
+    obj_ned_m: np.ndarray  # (N, 3)
+    obj_radius_m: np.ndarray
+    veh_ned_m: np.ndarray  # (N, 3)
+
+    @property
+    def object_ids(self) -> list[int]:
+        return sorted({int(i) for i in self.object_id})
+
+    def rows_for_frame(self, frame: int) -> np.ndarray:
+        return np.nonzero(self.frame == frame)[0]
+
+
+@dataclass
+class Scenario:
+    """One flight on disk: camera, frame times, telemetry and optional truth."""
+
+    root: Path
+    name: str
+    description: str
+    camera: CameraModel
+    frame_times_us: np.ndarray  # int64, strictly increasing
+    telemetry: list[TelemetrySample]  # in receive order
+    tlog_stats: TlogStats
+    truth: Truth | None
+    frames_dir: Path | None = None
+    video: Path | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frame_times_us)
+
+    def frame_path(self, index: int) -> Path:
+        assert self.frames_dir is not None
+        return self.frames_dir / f"{index:06d}.png"
+
+    def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
+        """Yield ``(index, t_us, BGR image)`` in order."""
+        if self.frames_dir is not None:
+            for i, t in enumerate(self.frame_times_us):
+                yield i, int(t), self.read_frame(i)
+            return
+        assert self.video is not None
+        cap = cv2.VideoCapture(str(self.video))
+        try:
+            for i, t in enumerate(self.frame_times_us):
+                ok, img = cap.read()
+                if not ok or img is None:
+                    raise ScenarioError(
+                        f"{self.video}: frame {i} cannot be decoded "
+                        f"(frames.csv lists {self.n_frames} frames)"
+                    )
+                self._check_size(img, f"{self.video}: frame {i}")
+                yield i, int(t), img
+        finally:
+            cap.release()
+
+    def read_frame(self, index: int) -> np.ndarray:
+        """One frame of a frames directory as a BGR uint8 image."""
+        path = self.frame_path(index)
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if img is None:
+            raise ScenarioError(f"{path}: cannot be read as an image")
+        self._check_size(img, str(path))
+        return img
+
+    def _check_size(self, img: np.ndarray, where: str) -> None:
+        h, w = img.shape[:2]
+        if (w, h) != (self.camera.width, self.camera.height):
+            raise ScenarioError(
+                f"{where}: image is {w}x{h} but scenario.toml [camera] says "
+                f"{self.camera.width}x{self.camera.height}"
+            )
+
+    def attitude_samples(self) -> list[AttitudeSample]:
+        return [s for s in self.telemetry if isinstance(s, AttitudeSample)]
+
+    def position_samples(self) -> list[PositionSample]:
+        return [s for s in self.telemetry if isinstance(s, PositionSample)]
+
+
+def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
+    """Read and validate a scenario directory.
+
+    ``check_frames`` opens the first frame to check its size against the camera model
+    (every frame is checked again when read).
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise ScenarioError(f"{root}: not a directory")
+    meta = _read_toml(root / "scenario.toml")
+    toml_path = root / "scenario.toml"
+    if meta.get("format") != FORMAT:
+        raise ScenarioError(f"{toml_path}: format must be {FORMAT!r}, got {meta.get('format')!r}")
+    name = meta.get("name", root.name)
+    if not isinstance(name, str):
+        raise ScenarioError(f"{toml_path}: name must be a string")
+    description = meta.get("description", "")
+    cam_table = meta.get("camera")
+    if not isinstance(cam_table, dict):
+        raise ScenarioError(f"{toml_path}: missing [camera] table")
+    try:
+        camera = camera_from_dict(cam_table, where=f"{toml_path}: camera")
+    except CameraModelError as exc:
+        raise ScenarioError(str(exc)) from None
+
+    has_dir, has_video = "frames_dir" in meta, "video" in meta
+    if has_dir == has_video:
+        raise ScenarioError(f"{toml_path}: give exactly one of frames_dir or video")
+    frames_dir = video = None
+    if has_dir:
+        frames_dir = root / str(meta["frames_dir"])
+        if not frames_dir.is_dir():
+            raise ScenarioError(f"{toml_path}: frames_dir {frames_dir} is not a directory")
+    else:
+        video = root / str(meta["video"])
+        if not video.is_file():
+            raise ScenarioError(f"{toml_path}: video {video} does not exist")
+
+    times = _read_frames_csv(root / "frames.csv")
+    warnings: list[str] = []
+    if frames_dir is not None:
+        present = {p.name for p in frames_dir.iterdir()}
+        for i in range(len(times)):
+            if f"{i:06d}.png" not in present:
+                raise ScenarioError(
+                    f"{root / 'frames.csv'}: line {i + 2}: frame {i} has no file "
+                    f"{frames_dir / f'{i:06d}.png'}"
+                )
+    else:
+        cap = cv2.VideoCapture(str(video))
+        if not cap.isOpened():
+            raise ScenarioError(f"{video}: OpenCV cannot open this video")
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        cap.release()
+        if 0 < count < len(times):
+            raise ScenarioError(
+                f"{root / 'frames.csv'}: lists {len(times)} frames but {video} holds {count}"
+            )
+
+    tlog_path = root / "telemetry.tlog"
+    if not tlog_path.is_file():
+        raise ScenarioError(f"{tlog_path}: missing (telemetry is required)")
+    try:
+        records, stats = read_tlog(tlog_path)
+    except TlogError as exc:
+        raise ScenarioError(str(exc)) from None
+    telemetry, types_seen = _telemetry_from_records(records)
+    if not any(isinstance(s, AttitudeSample) for s in telemetry):
+        raise ScenarioError(f"{tlog_path}: no ATTITUDE or ATTITUDE_QUATERNION from the autopilot")
+    if "HEARTBEAT" not in types_seen:
+        warnings.append(f"{tlog_path}: no HEARTBEAT")
+    if not any(isinstance(s, PositionSample) for s in telemetry):
+        warnings.append(f"{tlog_path}: no LOCAL_POSITION_NED (autopilot egomotion unavailable)")
+    if stats.skipped or stats.truncated_tail_bytes or stats.time_backwards:
+        warnings.append(f"{tlog_path}: {stats.summary()}")
+
+    truth_path = root / "truth.csv"
+    truth = _read_truth_csv(truth_path, len(times)) if truth_path.is_file() else None
+
+    scenario = Scenario(
+        root=root,
+        name=name,
+        description=str(description),
+        camera=camera,
+        frame_times_us=times,
+        telemetry=telemetry,
+        tlog_stats=stats,
+        truth=truth,
+        frames_dir=frames_dir,
+        video=video,
+        warnings=warnings,
+    )
+    if check_frames and frames_dir is not None and len(times):
+        scenario.read_frame(0)
+    return scenario
+
+
+def _telemetry_from_records(records: list[Any]) -> tuple[list[TelemetrySample], set[str]]:
+    """Telemetry samples from the autopilot (the system announcing itself as one)."""
+    types_seen: set[str] = set()
+    autopilot: tuple[int, int] | None = None
+    for r in records:
+        if r.msg.get_type() == "HEARTBEAT" and r.msg.autopilot != 8:  # 8: MAV_AUTOPILOT_INVALID
+            autopilot = (r.msg.get_srcSystem(), r.msg.get_srcComponent())
+            break
+    samples: list[TelemetrySample] = []
+    for r in records:
+        types_seen.add(r.msg.get_type())
+        if autopilot is not None and (r.msg.get_srcSystem(), r.msg.get_srcComponent()) != autopilot:
+            continue
+        s = sample_from_message(r.msg, r.recv_us)
+        if s is not None:
+            samples.append(s)
+    return samples, types_seen
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: missing (every scenario needs one)") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
+
+
+def _csv_rows(path: Path, header: list[str]) -> Iterator[tuple[int, list[str]]]:
+    """Rows of a CSV with an exact header, as (line number, fields)."""
+    try:
+        fh = open(path, newline="")
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: missing") from None
+    with fh:
+        reader = csv.reader(fh)
+        first = next(reader, None)
+        if first is None or [h.strip() for h in first] != header:
+            raise ScenarioError(
+                f"{path}: line 1: header must be {','.join(header)!r}, got {first!r}"
+            )
+        for row in reader:
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise ScenarioError(
+                    f"{path}: line {reader.line_num}: expected {len(header)} fields, got {len(row)}"
+                )
+            yield reader.line_num, [c.strip() for c in row]
+
+
+def _int(path: Path, line: int, name: str, text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise ScenarioError(
+            f"{path}: line {line}: {name} must be an integer, got {text!r}"
+        ) from None
+
+
+def _float(path: Path, line: int, name: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ScenarioError(f"{path}: line {line}: {name} must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise ScenarioError(f"{path}: line {line}: {name} must be finite, got {text!r}")
+    return value
+
+
+def _read_frames_csv(path: Path) -> np.ndarray:
+    times: list[int] = []
+    for line, (f_text, t_text) in _csv_rows(path, FRAMES_HEADER):
+        frame = _int(path, line, "frame", f_text)
+        t_us = _int(path, line, "t_us", t_text)
+        if frame != len(times):
+            raise ScenarioError(
+                f"{path}: line {line}: frame {frame} out of order (expected {len(times)})"
+            )
+        if times and t_us <= times[-1]:
+            raise ScenarioError(
+                f"{path}: line {line}: t_us {t_us} does not increase (previous {times[-1]})"
+            )
+        times.append(t_us)
+    if not times:
+        raise ScenarioError(f"{path}: no frames")
+    return np.asarray(times, dtype=np.int64)
+
+
+def _read_truth_csv(path: Path, n_frames: int) -> Truth:
+    cols: dict[str, list[float]] = {h: [] for h in TRUTH_HEADER}
+    for line, row in _csv_rows(path, TRUTH_HEADER):
+        frame = _int(path, line, "frame", row[0])
+        if not 0 <= frame < n_frames:
+            raise ScenarioError(f"{path}: line {line}: frame {frame} is not in frames.csv")
+        obj = _int(path, line, "object_id", row[1])
+        moving = _int(path, line, "moving", row[2])
+        if moving not in (0, 1):
+            raise ScenarioError(f"{path}: line {line}: moving must be 0 or 1, got {row[2]!r}")
+        cols["frame"].append(frame)
+        cols["object_id"].append(obj)
+        cols["moving"].append(moving)
+        for name, text in zip(TRUTH_HEADER[3:], row[3:]):
+            cols[name].append(_float(path, line, name, text))
+        if cols["obj_radius_m"][-1] <= 0:
+            raise ScenarioError(f"{path}: line {line}: obj_radius_m must be positive")
+    return Truth(
+        frame=np.asarray(cols["frame"], dtype=np.int64),
+        object_id=np.asarray(cols["object_id"], dtype=np.int64),
+        moving=np.asarray(cols["moving"], dtype=bool),
+        obj_ned_m=np.column_stack([cols["obj_n"], cols["obj_e"], cols["obj_d"]]).astype(np.float64),
+        obj_radius_m=np.asarray(cols["obj_radius_m"], dtype=np.float64),
+        veh_ned_m=np.column_stack([cols["veh_n"], cols["veh_e"], cols["veh_d"]]).astype(np.float64),
+    )

@@ -1,0 +1,17 @@
+"""Shared fixtures: paths to the independent example scenarios."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "examples"
+EXAMPLE_NAMES = ("EX-T90", "EX-PINHOLE", "EX-FISHEYE")
+
+
+def example_path(name: str) -> Path:
+    path = EXAMPLES / name
+    if not path.is_dir():
+        pytest.skip(f"example scenarios not found at {EXAMPLES}")
+    return path

@@ -1,0 +1,123 @@
+"""The scenario reader on the independent examples, and its errors on broken copies."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tcm_companion.io.scenario import ScenarioError, load_scenario
+
+from .conftest import EXAMPLE_NAMES, example_path
+
+
+@pytest.mark.parametrize("name", EXAMPLE_NAMES)
+def test_examples_load(name: str) -> None:
+    s = load_scenario(example_path(name))
+    assert s.n_frames in (30, 100)
+    assert s.warnings == []
+    assert np.all(np.diff(s.frame_times_us) > 0)
+    assert len(s.attitude_samples()) > 25 * s.n_frames / 25
+    assert len(s.position_samples()) > 0
+    assert s.truth is not None and s.truth.object_ids == [1]
+    _, t_us, img = next(s.iter_frames())
+    assert img.shape == (s.camera.height, s.camera.width, 3) and t_us == s.frame_times_us[0]
+
+
+@pytest.fixture()
+def broken(tmp_path: Path) -> Path:
+    dst = tmp_path / "s"
+    shutil.copytree(example_path("EX-PINHOLE"), dst)
+    for p in [dst, *dst.rglob("*")]:
+        p.chmod(0o755 if p.is_dir() else 0o644)
+    return dst
+
+
+def edit(path: Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, 1))
+
+
+def test_frames_csv_not_increasing(broken: Path) -> None:
+    lines = (broken / "frames.csv").read_text().splitlines()
+    lines[3] = lines[3].split(",")[0] + "," + lines[2].split(",")[1]
+    (broken / "frames.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ScenarioError, match=r"frames\.csv: line 4: t_us .* does not increase"):
+        load_scenario(broken)
+
+
+def test_frames_csv_bad_header_and_bad_int(broken: Path) -> None:
+    edit(broken / "frames.csv", "frame,t_us", "frame,time")
+    with pytest.raises(ScenarioError, match=r"frames\.csv: line 1: header"):
+        load_scenario(broken)
+    edit(broken / "frames.csv", "frame,time", "frame,t_us")
+    edit(broken / "frames.csv", "\n5,", "\nfive,")
+    with pytest.raises(ScenarioError, match=r"frames\.csv: line 7: frame must be an integer"):
+        load_scenario(broken)
+
+
+def test_missing_frame_file(broken: Path) -> None:
+    (broken / "frames" / "000007.png").unlink()
+    with pytest.raises(ScenarioError, match=r"line 9: frame 7 has no file .*000007\.png"):
+        load_scenario(broken)
+
+
+def test_camera_key_errors(broken: Path) -> None:
+    edit(broken / "scenario.toml", "fx = 320.0\n", "")
+    with pytest.raises(ScenarioError, match=r"scenario\.toml: camera\.fx is required"):
+        load_scenario(broken)
+
+
+def test_toml_syntax_error_names_line(broken: Path) -> None:
+    edit(broken / "scenario.toml", 'model = "pinhole"', "model = pinhole")
+    with pytest.raises(ScenarioError, match=r"scenario\.toml: .*line 7"):
+        load_scenario(broken)
+
+
+def test_wrong_format_and_image_size(broken: Path) -> None:
+    edit(broken / "scenario.toml", "width = 640", "width = 320")
+    with pytest.raises(ScenarioError, match=r"000000\.png: image is 640x480 but .* says 320x480"):
+        load_scenario(broken)
+    edit(broken / "scenario.toml", "tcm-scenario/1", "tcm-scenario/2")
+    with pytest.raises(ScenarioError, match="format must be"):
+        load_scenario(broken)
+
+
+def test_truth_errors(broken: Path) -> None:
+    lines = (broken / "truth.csv").read_text().splitlines()
+    fields = lines[5].split(",")
+    fields[2] = "2"
+    lines[5] = ",".join(fields)
+    (broken / "truth.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ScenarioError, match=r"truth\.csv: line 6: moving must be 0 or 1"):
+        load_scenario(broken)
+
+
+def test_missing_or_corrupt_tlog(broken: Path) -> None:
+    data = (broken / "telemetry.tlog").read_bytes()
+    (broken / "telemetry.tlog").write_bytes(data[:8] + b"\x00" + data[9:])
+    with pytest.raises(ScenarioError, match=r"telemetry\.tlog: record 0 at byte 0"):
+        load_scenario(broken)
+    (broken / "telemetry.tlog").unlink()
+    with pytest.raises(ScenarioError, match=r"telemetry\.tlog: missing"):
+        load_scenario(broken)
+
+
+def test_video_scenario(broken: Path, tmp_path: Path) -> None:
+    import cv2
+
+    s = load_scenario(broken)
+    writer = cv2.VideoWriter(
+        str(broken / "video.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 25, (640, 480)
+    )
+    for _, _, img in s.iter_frames():
+        writer.write(img)
+    writer.release()
+    edit(broken / "scenario.toml", 'frames_dir = "frames"', 'video = "video.avi"')
+    shutil.rmtree(broken / "frames")
+    v = load_scenario(broken)
+    frames = list(v.iter_frames())
+    assert len(frames) == 30 and frames[0][2].shape == (480, 640, 3)

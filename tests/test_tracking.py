@@ -1,0 +1,84 @@
+"""Tracking by bearing: gating, stable ids, coasting, history."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tcm_companion.core.frames import bearing_from_azel
+from tcm_companion.core.tracking import Observation, Tracker, TrackerConfig
+
+
+def obs(frame: int, az_deg: float, el_deg: float = 0.0, alpha_deg: float = 3.0) -> Observation:
+    b = bearing_from_azel(np.radians(az_deg), np.radians(el_deg))
+    return Observation(frame, frame * 40_000, b, b, b, math.radians(alpha_deg), (0.0, 0.0))
+
+
+def test_two_objects_keep_their_ids() -> None:
+    tr = Tracker()
+    ids = None
+    for f in range(30):
+        tracks = tr.update([obs(f, 10 + 0.5 * f), obs(f, 60 - 0.3 * f)], f * 40_000)
+        now = {
+            round(
+                math.degrees(math.atan2(t.last.bearing_ned[1], t.last.bearing_ned[0]))
+            ): t.track_id
+            for t in tracks
+        }
+        if ids is None:
+            ids = sorted(t.track_id for t in tracks)
+        assert sorted(t.track_id for t in tracks) == ids
+        assert len(now) == 2
+    assert all(len(t.history) == 30 for t in tr.tracks)
+
+
+def test_detections_order_does_not_matter() -> None:
+    tr = Tracker()
+    tr.update([obs(0, 10), obs(0, 40)], 0)
+    first = {t.track_id: t.last.bearing_ned[1] for t in tr.tracks}
+    tr.update([obs(1, 40.2), obs(1, 10.2)], 40_000)
+    for t in tr.tracks:
+        assert abs(t.last.bearing_ned[1] - first[t.track_id]) < 0.01
+
+
+def test_missed_detection_coasts_then_reassociates() -> None:
+    tr = Tracker()
+    for f in range(5):
+        tr.update([obs(f, 10 + f)], f * 40_000)
+    tid = tr.tracks[0].track_id
+    tracks = tr.update([], 5 * 40_000)
+    assert tracks[0].coasting and tracks[0].track_id == tid
+    tracks = tr.update([obs(6, 16)], 6 * 40_000)
+    assert [t.track_id for t in tracks] == [tid] and not tracks[0].coasting
+    assert tracks[0].at_frame(5) is None and tracks[0].at_frame(6) is not None
+
+
+def test_far_jump_or_size_jump_starts_a_new_track() -> None:
+    tr = Tracker()
+    tr.update([obs(0, 10)], 0)
+    tracks = tr.update([obs(1, 40)], 40_000)
+    assert len(tracks) == 2
+    tr = Tracker()
+    tr.update([obs(0, 10, alpha_deg=3.0)], 0)
+    tracks = tr.update([obs(1, 10.1, alpha_deg=9.0)], 40_000)
+    assert len(tracks) == 2
+
+
+def test_track_dropped_after_max_misses_and_ids_not_reused() -> None:
+    tr = Tracker(TrackerConfig(max_misses=2))
+    tr.update([obs(0, 10)], 0)
+    for f in range(1, 4):
+        tr.update([], f * 40_000)
+    assert tr.tracks == []
+    tracks = tr.update([obs(4, 10)], 4 * 40_000)
+    assert tracks[0].track_id == 2
+
+
+def test_history_is_bounded() -> None:
+    tr = Tracker(TrackerConfig(history_frames=10))
+    for f in range(25):
+        tr.update([obs(f, 10)], f * 40_000)
+    t = tr.tracks[0]
+    assert len(t.history) == 10 and t.at_frame(14) is None and t.at_frame(15) is not None
+    assert t.nearest_at_or_before(30, 6) is t.history[-1]

@@ -74,7 +74,7 @@ class BackgroundSubtractor:
     ) -> float:
         """Number of supra-threshold difference pixels around the object (earlier frame)."""
         cfg = self.config
-        r = max(cfg.min_window_px, int(round(cfg.window_radius_factor * radius_px)))
+        r = max(cfg.min_window_px, round(cfg.window_radius_factor * radius_px))
         u, v = int(centroid_px_earlier[0]), int(centroid_px_earlier[1])
         h, w = gray_earlier.shape[:2]
         y0, y1 = max(0, v - r), min(h, v + r + 1)

@@ -1,4 +1,8 @@
-"""Shared fixtures: paths to the independent example scenarios."""
+"""Shared fixtures: paths to the independent example scenarios.
+
+The three examples of shared/examples (rendered by code outside this project) are
+vendored under tests/data/examples so that CI checks our reader against them too.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "examples"
+EXAMPLES = Path(__file__).resolve().parent / "data" / "examples"
 EXAMPLE_NAMES = ("EX-T90", "EX-PINHOLE", "EX-FISHEYE")
 
 

@@ -1,14 +1,335 @@
-"""Command line: ``tcm-companion <command>``."""
+"""Command line: ``tcm-companion <command>``.
+
+Commands: ``demo`` (the default job: simulate the paper's flights and print the
+evaluation), ``replay``, ``eval``, ``bench``, ``sim export`` and ``sim list``.
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 from . import __version__
+from .config import AppConfig, ConfigError, load_config
+from .core.classify import METHODS
+
+DEFAULT_CONFIG = Path("config.toml")
+
+
+def _config(path: str | None) -> AppConfig:
+    if path is not None:
+        return load_config(path)
+    return load_config(DEFAULT_CONFIG) if DEFAULT_CONFIG.is_file() else AppConfig()
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = text.lower().split("x")
+        size = int(w), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"resolution must look like 360x220, got {text!r}"
+        ) from None
+    if min(size) <= 0:
+        raise argparse.ArgumentTypeError(f"resolution must be positive, got {text!r}")
+    return size
+
+
+def _progress(total: int, desc: str, enabled: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total, desc=desc, unit="frame", disable=not enabled, leave=False, file=sys.stderr
+    )
+
+
+# -- replay ------------------------------------------------------------------------------
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .io.results import ResultsWriter
+    from .io.scenario import load_scenario
+    from .replay import run_replay, with_method
+
+    config = with_method(_config(args.config), args.method, bsm=args.method == "bsm")
+    scenario = load_scenario(args.scenario)
+    for w in scenario.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    states: dict[str, int] = {}
+    with (
+        open(args.results, "w", newline="") as fh,
+        _progress(scenario.n_frames, scenario.name, not args.quiet) as bar,
+    ):
+        writer = ResultsWriter(fh)
+        for result in run_replay(scenario, config):
+            writer.write(result)
+            for o in result.objects:
+                states[o.state] = states.get(o.state, 0) + 1
+            bar.update(1)
+    summary = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "no objects"
+    print(
+        f"{scenario.name}: {scenario.n_frames} frames, {writer.rows} rows ({summary}) -> {args.results}"
+    )
+    return 0
+
+
+# -- eval ----------------------------------------------------------------------------------
+def _scenarios(args: argparse.Namespace) -> list[Any]:
+    from .io.scenario import load_scenario
+
+    out: list[Any] = [load_scenario(p) for p in args.scenarios]
+    if args.sim:
+        from .sim.scenarios import make_scenario
+
+        for name in args.sim:
+            out.append(make_scenario(name, duration_s=args.duration, seed=args.seed))
+    if not out:
+        raise SystemExit("eval: give scenario directories and/or --sim NAME ...")
+    return out
+
+
+def run_evaluation(
+    scenarios: Sequence[Any],
+    config: AppConfig,
+    resolutions: Sequence[tuple[int, int] | None],
+    out_dir: Path | None,
+    intervals: tuple[int, ...] = (),
+    with_bsm: bool = True,
+    progress: bool = True,
+) -> str:
+    """Evaluate scenarios at each resolution; return the printable report (and write plots)."""
+    from .eval.evaluate import ResizedScenario, evaluate_scenario, summarize
+    from .eval.report import (
+        methods_table,
+        per_scenario_table,
+        plot_disparity_over_time,
+        plot_roc,
+        plot_separation,
+        separation_by_interval,
+        ttc_table,
+    )
+
+    cls = config.pipeline.classifier
+    evals = []
+    groups = []
+    for res in resolutions:
+        group_evals = []
+        for sc in scenarios:
+            src = sc if res is None else ResizedScenario(sc, *res)
+            with _progress(
+                src.n_frames, f"{sc.name} {src.camera.width}x{src.camera.height}", progress
+            ) as bar:
+                ev = evaluate_scenario(
+                    src,
+                    config,
+                    with_bsm=with_bsm,
+                    intervals=intervals,
+                    on_frame=lambda _r: bar.update(1),
+                )
+            group_evals.append(ev)
+        evals.extend(group_evals)
+        records = [r for ev in group_evals for r in ev.records]
+        label = "native" if res is None else f"{res[0]}x{res[1]}"
+        groups.append((label, summarize(records, cls)))
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            plot_roc(records, cls, out_dir / f"roc_{label}.png", f"ROC, pooled scenarios, {label}")
+            plot_disparity_over_time(group_evals, cls, out_dir / f"disparity_{label}.png")
+    parts = [
+        "Per scenario (TCM at the configured threshold):",
+        per_scenario_table(evals, cls),
+        "",
+        "Per method, static and moving flights pooled (paper Tables 2-3, Fig. 10):",
+        methods_table(groups),
+    ]
+    ttc = ttc_table(evals)
+    if ttc.count("\n"):
+        parts += ["", "Time to contact (rows where both estimate and truth exist):", ttc]
+    if intervals:
+        sep = separation_by_interval(evals)
+        parts += ["", "Separation by frame interval (paper Fig. 4):"]
+        parts += [f"  k={k:>2}  separation {v:+.3f}" for k, v in sep.items()]
+        if out_dir is not None:
+            plot_separation(sep, out_dir / "separation.png")
+    if out_dir is not None:
+        parts += ["", f"plots written to {out_dir}/"]
+    return "\n".join(parts)
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    config = _config(args.config)
+    scenarios = _scenarios(args)
+    resolutions: list[tuple[int, int] | None] = (
+        list(args.resolutions) if args.resolutions else [None]
+    )
+    intervals = tuple(range(1, 41)) if args.intervals else ()
+    out = Path(args.out) if args.out else None
+    report = run_evaluation(
+        scenarios,
+        config,
+        resolutions,
+        out,
+        intervals,
+        with_bsm=not args.no_bsm,
+        progress=not args.quiet,
+    )
+    print(report)
+    if out is not None:
+        (out / "report.txt").write_text(report + "\n")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The default job: the paper's three flights, simulated, evaluated."""
+    from .sim.scenarios import make_scenario
+
+    config = _config(args.config)
+    print("Simulating the paper's flights TS, T45, T90 (360x220 panorama) and evaluating TCM,")
+    print("ECM, BSM and fused TCM+ECM on them...", flush=True)
+    scenarios = [
+        make_scenario(n, duration_s=args.duration, seed=args.seed) for n in ("TS", "T45", "T90")
+    ]
+    out = Path(args.out)
+    print(run_evaluation(scenarios, config, [None], out, progress=not args.quiet))
+    return 0
+
+
+# -- bench ---------------------------------------------------------------------------------
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import run_bench
+
+    print(
+        run_bench(_config(args.config), args.resolutions or [(360, 220), (900, 550)], args.frames)
+    )
+    return 0
+
+
+# -- sim -----------------------------------------------------------------------------------
+def _camera_arg(args: argparse.Namespace) -> Any:
+    if args.camera is None:
+        return None
+    from .sim.cameras import preset_camera
+
+    return preset_camera(args.camera, args.resolution, args.name)
+
+
+def cmd_sim_export(args: argparse.Namespace) -> int:
+    from .sim.export import export_scenario
+    from .sim.scenarios import make_scenario
+
+    camera = _camera_arg(args)
+    sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)
+    if camera is None and args.resolution is not None:
+        sim = make_scenario(
+            args.name,
+            camera=sim.camera.scaled(*args.resolution),
+            duration_s=args.duration,
+            seed=args.seed,
+        )
+    export_scenario(sim, Path(args.dir))
+    print(
+        f"wrote {sim.name}: {sim.n_frames} frames, {sim.camera.model_name} "
+        f"{sim.camera.width}x{sim.camera.height} -> {args.dir}"
+    )
+    return 0
+
+
+def cmd_sim_list(_args: argparse.Namespace) -> int:
+    from .sim.scenarios import SCENARIO_NAMES, describe_scenario
+
+    for name in SCENARIO_NAMES:
+        print(f"{name:<10} {describe_scenario(name)}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tcm-companion",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=__version__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--config", help="config.toml (default: ./config.toml if present, else built-in)"
+        )
+        p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+    p = sub.add_parser("demo", help="simulate TS/T45/T90 and print the evaluation (make run)")
+    common(p)
+    p.add_argument(
+        "--duration", type=float, default=None, help="seconds per flight (default: scenario's)"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="out/demo", help="folder for plots (default out/demo)")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("replay", help="run a tcm-scenario/1 directory through the pipeline")
+    common(p)
+    p.add_argument("scenario")
+    p.add_argument("--results", required=True, help="results CSV to write")
+    p.add_argument(
+        "--method", choices=METHODS, default=None, help="decision method (default: config)"
+    )
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("eval", help="accuracy, coverage, ROC of TCM/ECM/BSM/fused against truth")
+    common(p)
+    p.add_argument("scenarios", nargs="*", help="scenario directories (with truth.csv)")
+    p.add_argument("--sim", nargs="+", metavar="NAME", help="also simulate these scenarios")
+    p.add_argument("--duration", type=float, default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--resolutions",
+        type=_resolution,
+        nargs="+",
+        metavar="WxH",
+        help="evaluate at these image sizes (same field of view)",
+    )
+    p.add_argument(
+        "--intervals", action="store_true", help="separation study over frame intervals 1..40"
+    )
+    p.add_argument(
+        "--no-bsm", action="store_true", help="skip the (slow) background subtraction baseline"
+    )
+    p.add_argument("--out", help="folder for plots and report.txt")
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("bench", help="per-stage time per frame, one core")
+    common(p)
+    p.add_argument("--resolutions", type=_resolution, nargs="+", metavar="WxH")
+    p.add_argument("--frames", type=int, default=200, help="frames timed per resolution and method")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("sim", help="the built-in simulator")
+    ssub = p.add_subparsers(dest="sim_command", required=True)
+    e = ssub.add_parser("export", help="write a simulated scenario as a tcm-scenario/1 directory")
+    e.add_argument("name", help="scenario name (see `sim list`)")
+    e.add_argument("dir", help="output directory")
+    e.add_argument("--camera", choices=("panorama", "pinhole", "fisheye"), default=None)
+    e.add_argument("--resolution", type=_resolution, default=None, metavar="WxH")
+    e.add_argument("--duration", type=float, default=None)
+    e.add_argument("--seed", type=int, default=0)
+    e.set_defaults(func=cmd_sim_export)
+    ls = ssub.add_parser("list", help="list the simulated scenarios")
+    ls.set_defaults(func=cmd_sim_list)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="tcm-companion", description=__doc__)
-    parser.add_argument("--version", action="version", version=__version__)
-    parser.parse_args(argv)
-    return 0
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except ConfigError as exc:
+        print(f"config error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError) as exc:
+        from .io.scenario import ScenarioError
+
+        if isinstance(exc, ScenarioError | OSError):
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        raise

@@ -32,6 +32,10 @@ State = Literal["moving", "stationary", "unknown"]
 class ClassifierConfig:
     method: Method = "tcm"
     frame_interval: int = 25  # frames between the two observations compared (paper: 25)
+    # More intervals compared at every frame; the largest score decides. A moving object
+    # whose displacement over one interval happens to vanish shows it over another.
+    extra_intervals: tuple[int, ...] = ()
+    hold_frames: int = 0  # a score counts for this many frames after it was measured
     min_frame_interval: int = 25  # shortest interval used while a track is young
     frame_tolerance: int = 2  # the earlier observation may be this many frames older
     tcm_threshold: float = 0.09  # δ above this: moving (paper's mean optimum)
@@ -40,6 +44,11 @@ class ClassifierConfig:
     min_theta_rad: float = math.radians(10.0)  # closer to the translation axis: head-on
     min_baseline_m: float = 0.0  # autopilot |T| below this: small baseline (0: off)
     min_flow_parallax_rad: float = 0.0  # vision ground parallax below this: small baseline
+
+    @property
+    def intervals(self) -> tuple[int, ...]:
+        """All intervals compared, longest first (the primary one included)."""
+        return tuple(sorted({self.frame_interval, *self.extra_intervals}, reverse=True))
 
 
 @dataclass(frozen=True)
@@ -107,3 +116,41 @@ def classify_pair(
     if not math.isfinite(score):
         return replace(measured, reason="degenerate geometry")
     return replace(measured, state="moving" if score > 1.0 else "stationary")
+
+
+def combine_pairs(pairs: list[Classification]) -> Classification:
+    """Several decided pairs of one track in one frame → one: each score's maximum.
+
+    The geometry fields (ratios, angles, interval) are those of the pair with the
+    largest disparity; the BSM score is the one pair that computed it.
+    """
+    top = max(pairs, key=lambda c: c.disparity)
+    bsm = [c.bsm_score for c in pairs if math.isfinite(c.bsm_score)]
+    return replace(
+        top,
+        omega_rad=max(c.omega_rad for c in pairs),
+        bsm_score=bsm[0] if bsm else math.nan,
+    )
+
+
+def hold(current: Classification, recent: list[Classification]) -> Classification:
+    """``current`` with each score replaced by its maximum over ``recent`` (current included)."""
+
+    def peak(values: list[float]) -> float:
+        finite = [v for v in values if math.isfinite(v)]
+        return max(finite) if finite else math.nan
+
+    return replace(
+        current,
+        disparity=peak([c.disparity for c in recent]),
+        omega_rad=peak([c.omega_rad for c in recent]),
+        bsm_score=peak([c.bsm_score for c in recent]),
+    )
+
+
+def decide(c: Classification, config: ClassifierConfig) -> Classification:
+    """Set the state from the configured method's score."""
+    score = c.score(config.method, config)
+    if not math.isfinite(score):
+        return replace(c, state="unknown", reason="degenerate geometry")
+    return replace(c, state="moving" if score > 1.0 else "stationary", reason="")

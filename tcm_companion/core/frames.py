@@ -126,3 +126,18 @@ def angle_between(a: FloatArray, b: FloatArray) -> FloatArray:
     cross = np.linalg.norm(np.cross(a, b), axis=-1)
     dot = np.sum(a * b, axis=-1)
     return np.arctan2(cross, dot)
+
+
+def rotate_by_vector(v: FloatArray, rotvec: FloatArray) -> FloatArray:
+    """``exp([ω]×) @ v`` (Rodrigues) for a rotation vector ``ω`` in radians."""
+    w = np.asarray(rotvec, dtype=np.float64)
+    theta = float(np.linalg.norm(w))
+    v = np.asarray(v, dtype=np.float64)
+    if theta < 1e-15:
+        return v
+    k = w / theta
+    return np.asarray(
+        v * np.cos(theta)
+        + np.cross(k, v) * np.sin(theta)
+        + np.outer(v @ k, k).reshape(v.shape) * (1 - np.cos(theta))
+    )

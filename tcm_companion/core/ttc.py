@@ -83,7 +83,11 @@ def estimate_ttc(
     approaching = slope > 1.0 / config.max_ttc_s and slope > config.min_significance * stderr
     if not approaching:
         return TTCEstimate(math.nan, slope, math.nan, False)
-    ttc = 1.0 / slope
+    # A straight-line fit over the window measures the looming rate at the window's
+    # middle (ln sin α is convex in time on an approach); contact is that much closer now.
+    ttc = 1.0 / slope - float(t[-1] - np.median(t))
+    if ttc <= 0:
+        ttc = 1.0 / slope
     # Bearing rate from the first and last thirds (robust to one bad bearing).
     n3 = max(1, len(t) // 3)
     b_first = np.median(b[:n3], axis=0)

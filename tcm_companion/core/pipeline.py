@@ -1,0 +1,462 @@
+"""The TCM pipeline: one object that turns frames and telemetry into per-object results.
+
+``Pipeline.step(frame, frame_time_us, telemetry)`` runs, for one camera frame:
+attitude at the frame time (slerp on the autopilot clock mapped to the companion clock)
+→ detection → tracking by bearing → optic flow → translation between the frame and the
+one ``frame_interval`` earlier (vision, autopilot or fused) → TCM/ECM (and BSM when
+enabled) per track → time to contact. It keeps the short history the method needs and
+nothing else; it never reads a clock, a file or a device (stage timings use an injected
+timer and do not affect results). Flight, SITL and replay all call this same object.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from .bsm import BackgroundSubtractor, BSMConfig
+from .camera import CameraModel
+from .classify import (
+    Classification,
+    ClassifierConfig,
+    State,
+    classify_pair,
+    combine_pairs,
+    decide,
+    hold,
+    unknown,
+)
+from .detection import Detection, DetectionConfig, Detector
+from .egomotion import (
+    EgomotionConfig,
+    TranslationEstimate,
+    fuse,
+    translation_from_bearings,
+    translation_from_positions,
+)
+from .flow import FlowConfig, FlowTracker
+from .frames import FloatArray, azel_from_bearing, rotate_by_vector
+from .tcm import triangle_geometry
+from .telemetry import TelemetryBuffer, TelemetrySample
+from .tracking import Observation, Track, Tracker, TrackerConfig
+from .ttc import TTCConfig, estimate_ttc
+
+EgomotionSource = Literal["vision", "autopilot", "fused"]
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Every tunable of the core, one frozen dataclass per stage."""
+
+    egomotion_source: EgomotionSource = "fused"
+    detection: DetectionConfig = field(default_factory=DetectionConfig)
+    tracking: TrackerConfig = field(default_factory=TrackerConfig)
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    egomotion: EgomotionConfig = field(default_factory=EgomotionConfig)
+    classifier: ClassifierConfig = field(default_factory=ClassifierConfig)
+    ttc: TTCConfig = field(default_factory=TTCConfig)
+    bsm: BSMConfig = field(default_factory=BSMConfig)
+    bsm_enabled: bool = False  # BSM costs a whole-frame warp; on for method "bsm" or eval
+    # Undo the attitude error between two frames that vision egomotion measured.
+    egomotion_rotation_correction: bool = True
+
+
+@dataclass(frozen=True)
+class ObjectResult:
+    """One tracked object in one frame."""
+
+    track_id: int
+    detected: bool  # False while the track coasts through a missed detection
+    state: State
+    reason: str  # why the state is unknown ("" otherwise)
+    bearing_cam: FloatArray  # (3,) unit, camera FRD
+    bearing_body: FloatArray  # (3,) unit, body FRD
+    bearing_ned: FloatArray  # (3,) unit, local level NED
+    azimuth_ned_rad: float  # clockwise from north
+    elevation_ned_rad: float  # positive up
+    angular_radius_rad: float
+    centroid_px: tuple[float, float]
+    classification: Classification
+    ttc_s: float  # NaN when not approaching
+    collision_course: bool
+    miss_radii: float  # predicted miss distance in object radii (NaN if unknown)
+
+    @property
+    def disparity(self) -> float:
+        return self.classification.disparity
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    frame_index: int
+    t_us: int
+    objects: tuple[ObjectResult, ...]
+    attitude_ok: bool
+    translation: TranslationEstimate | None  # for the default interval, if computed
+    timings_ms: dict[str, float]
+
+
+@dataclass
+class PipelineHealth:
+    frames: int = 0
+    frames_without_attitude: int = 0
+    time_backwards: int = 0
+    bad_frames: int = 0
+    events: Counter[str] = field(default_factory=Counter)
+
+
+@dataclass(frozen=True)
+class _FrameRecord:
+    index: int
+    t_us: int
+    R_ned_from_cam: FloatArray | None
+    pos_ned_m: FloatArray | None
+    gray: np.ndarray | None  # kept only when BSM is enabled
+
+
+class Pipeline:
+    """Frames and telemetry in, :class:`FrameResult` out. One per camera."""
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        config: PipelineConfig = PipelineConfig(),
+        timer: Callable[[], float] = time.perf_counter,
+    ) -> None:
+        self.camera = camera
+        self.config = config
+        self._timer = timer
+        self.telemetry = TelemetryBuffer()
+        self.detector = Detector(camera, config.detection)
+        self.tracker = Tracker(config.tracking)
+        self.flow = FlowTracker(camera, config.flow)
+        cls = config.classifier
+        # Frame records for the classifier's interval, and up to 48 for interval studies.
+        depth = max(cls.frame_interval + cls.frame_tolerance + 2, 48)
+        self._frames: deque[_FrameRecord] = deque(maxlen=depth)
+        self._bsm = (
+            BackgroundSubtractor(camera, config.bsm)
+            if (config.bsm_enabled or cls.method == "bsm")
+            else None
+        )
+        self._index = 0
+        self._last_t_us: int | None = None
+        self._bsm_s = 0.0  # time spent in BSM this step (reported apart from classify)
+        self._bsm_warps: dict[int, np.ndarray] = {}  # reference frame -> warp, this step
+        self._bsm_warps_for = -1
+        # Recent decided classifications per track, for the hold.
+        self._memory: dict[int, deque[tuple[int, Classification]]] = {}
+        self.health = PipelineHealth()
+
+    # -- the one entry point -------------------------------------------------------
+    def step(
+        self,
+        frame: np.ndarray,
+        frame_time_us: int,
+        telemetry: Sequence[TelemetrySample] = (),
+    ) -> FrameResult:
+        """Process one BGR frame captured at ``frame_time_us`` (companion clock).
+
+        ``telemetry`` holds the samples received since the previous call (any order of
+        kinds, receive order within a kind).
+        """
+        timings: dict[str, float] = {}
+        clock = self._timer
+        t_start = clock()
+        self.telemetry.extend(tuple(telemetry))
+        if self._last_t_us is not None and frame_time_us <= self._last_t_us:
+            # Time went backwards (camera restart, clock step): history is meaningless.
+            self.health.time_backwards += 1
+            self._reset_history()
+        self._last_t_us = frame_time_us
+        index = self._index
+        self._index += 1
+        self.health.frames += 1
+
+        if (
+            frame is None
+            or frame.ndim != 3
+            or frame.shape[:2] != (self.camera.height, self.camera.width)
+        ):
+            self.health.bad_frames += 1
+            return FrameResult(index, frame_time_us, (), False, None, {"total": 0.0})
+
+        R_body = self.telemetry.attitude_at(frame_time_us)
+        R_ned_from_cam = None if R_body is None else R_body @ self.camera.R_body_from_cam
+        if R_ned_from_cam is None:
+            self.health.frames_without_attitude += 1
+        pos = self.telemetry.position_at(frame_time_us)
+        t0 = clock()
+        timings["telemetry"] = (t0 - t_start) * 1e3
+
+        detections = self.detector.detect(frame)
+        t1 = clock()
+        timings["detect"] = (t1 - t0) * 1e3
+
+        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        boxes = [d.bbox_px for d in detections]
+        self.flow.update(gray, index, R_ned_from_cam, boxes)
+        t2 = clock()
+        timings["flow"] = (t2 - t1) * 1e3
+
+        self._frames.append(
+            _FrameRecord(
+                index,
+                frame_time_us,
+                R_ned_from_cam,
+                None if pos is None else pos[0],
+                gray if self._bsm is not None else None,
+            )
+        )
+        if R_ned_from_cam is None:
+            tracks = self.tracker.coast_all()
+        else:
+            obs = [self._observation(d, index, frame_time_us, R_ned_from_cam) for d in detections]
+            tracks = self.tracker.update(obs, frame_time_us)
+        t3 = clock()
+        timings["track"] = (t3 - t2) * 1e3
+
+        cache: dict[int, TranslationEstimate] = {}
+        self._bsm_s = 0.0
+        objects = [self._object_result(tr, index, cache) for tr in tracks]
+        live = {tr.track_id for tr in tracks}
+        for tid in [t for t in self._memory if t not in live]:
+            del self._memory[tid]
+        t4 = clock()
+        timings["bsm"] = self._bsm_s * 1e3
+        timings["classify"] = (t4 - t3 - self._bsm_s) * 1e3
+        timings["total"] = (t4 - t_start) * 1e3
+        default_ref = index - self.config.classifier.frame_interval
+        return FrameResult(
+            index,
+            frame_time_us,
+            tuple(objects),
+            R_ned_from_cam is not None,
+            cache.get(default_ref),
+            timings,
+        )
+
+    def disparities_for_intervals(self, intervals: Sequence[int]) -> dict[int, dict[int, float]]:
+        """TCM disparity of every track detected in the last frame, for each interval.
+
+        An analysis hook (the paper's Fig. 4 separation study); call right after
+        :meth:`step`. Returns ``{interval: {track_id: δ}}`` where defined.
+        """
+        out: dict[int, dict[int, float]] = {}
+        if not self._frames:
+            return out
+        index = self._frames[-1].index
+        for k in intervals:
+            per_track: dict[int, float] = {}
+            est: TranslationEstimate | None = None
+            for track in self.tracker.tracks:
+                cur = track.last
+                ref = track.at_frame(index - k)
+                if track.coasting or ref is None or cur.frame_index != index:
+                    continue
+                if est is None:
+                    est = self._translation(index - k, index)
+                if not est.valid:
+                    break
+                geo = triangle_geometry(
+                    est.t_hat_ned,
+                    ref.bearing_ned,
+                    cur.bearing_ned,
+                    ref.angular_radius_rad,
+                    cur.angular_radius_rad,
+                )
+                per_track[track.track_id] = float(geo.disparity)
+            out[k] = per_track
+        return out
+
+    # -- internals ---------------------------------------------------------------------
+    def _reset_history(self) -> None:
+        self._memory.clear()
+        self._frames.clear()
+        self.tracker.reset()
+        self.flow.reset()
+
+    def _observation(
+        self, det: Detection, index: int, t_us: int, R_ned_from_cam: FloatArray
+    ) -> Observation:
+        b_body = self.camera.R_body_from_cam @ det.bearing_cam
+        return Observation(
+            frame_index=index,
+            t_us=t_us,
+            bearing_ned=R_ned_from_cam @ det.bearing_cam,
+            bearing_body=b_body,
+            bearing_cam=det.bearing_cam,
+            angular_radius_rad=det.angular_radius_rad,
+            centroid_px=det.centroid_px,
+            touches_border=det.touches_border,
+        )
+
+    def _record(self, index: int) -> _FrameRecord | None:
+        if not self._frames:
+            return None
+        offset = index - self._frames[0].index
+        if 0 <= offset < len(self._frames) and self._frames[offset].index == index:
+            return self._frames[offset]
+        for rec in self._frames:
+            if rec.index == index:
+                return rec
+        return None
+
+    def _translation(self, ref_index: int, cur_index: int) -> TranslationEstimate:
+        src = self.config.egomotion_source
+        vision = autopilot = None
+        if src in ("vision", "fused"):
+            b0, b1 = self.flow.correspondences(ref_index, cur_index)
+            vision = translation_from_bearings(b0, b1, self.config.egomotion, rng_seed=cur_index)
+        if src in ("autopilot", "fused"):
+            r0, r1 = self._record(ref_index), self._record(cur_index)
+            if r0 is None or r1 is None or r0.pos_ned_m is None or r1.pos_ned_m is None:
+                autopilot = TranslationEstimate.invalid("autopilot")
+            else:
+                autopilot = translation_from_positions(
+                    r0.pos_ned_m, r1.pos_ned_m, self.config.egomotion
+                )
+        if vision is None:
+            assert autopilot is not None
+            return autopilot
+        if autopilot is None:
+            return vision
+        return fuse(vision, autopilot, self.config.egomotion)
+
+    def _classify(
+        self, track: Track, index: int, cache: dict[int, TranslationEstimate]
+    ) -> Classification:
+        """Compare the newest observation with earlier ones, then apply the hold."""
+        cls = self.config.classifier
+        cur = track.last
+        if track.coasting:
+            return unknown("lost track")
+        pairs: list[Classification] = []
+        for k in cls.intervals:
+            ref = track.nearest_at_or_before(index - k, cls.frame_tolerance)
+            if ref is not None and ref.frame_index < cur.frame_index:
+                pairs.append(self._classify_pair(ref, cur, cache, bsm=k == cls.frame_interval))
+        if not pairs:
+            # Young track: the oldest observation, if the interval is long enough.
+            oldest = track.history[0]
+            if index - oldest.frame_index < cls.min_frame_interval:
+                return unknown("warm-up")
+            pairs.append(self._classify_pair(oldest, cur, cache, bsm=False))
+        decided = [c for c in pairs if c.state != "unknown"]
+        if not decided:
+            return pairs[-1]
+        combined = combine_pairs(decided)
+        memory = self._memory.setdefault(track.track_id, deque())
+        memory.append((index, combined))
+        while memory and index - memory[0][0] > cls.hold_frames:
+            memory.popleft()
+        return decide(hold(combined, [c for _, c in memory]), cls)
+
+    def _classify_pair(
+        self,
+        ref: Observation,
+        cur: Observation,
+        cache: dict[int, TranslationEstimate],
+        bsm: bool,
+    ) -> Classification:
+        cls = self.config.classifier
+        interval = cur.frame_index - ref.frame_index
+        if ref.frame_index not in cache:
+            cache[ref.frame_index] = self._translation(ref.frame_index, cur.frame_index)
+        est = cache[ref.frame_index]
+        if not est.valid:
+            return unknown("no translation", interval)
+        if cls.min_baseline_m > 0 and not (est.magnitude_m >= cls.min_baseline_m):
+            if math.isfinite(est.magnitude_m):
+                return unknown("small baseline", interval)
+        if cls.min_flow_parallax_rad > 0 and est.parallax_rad < cls.min_flow_parallax_rad:
+            return unknown("small baseline", interval)
+        if cur.touches_border or ref.touches_border:
+            return unknown("at image border", interval)
+        bsm_score = self._bsm_score(ref) if (bsm and self._bsm is not None) else math.nan
+        b1 = cur.bearing_ned
+        if self.config.egomotion_rotation_correction and np.any(est.rotation_ned_rad):
+            # Vision measured the attitude error between the two frames: undo it.
+            b1 = rotate_by_vector(b1, est.rotation_ned_rad)
+        return classify_pair(
+            est.t_hat_ned,
+            ref.bearing_ned,
+            b1,
+            ref.angular_radius_rad,
+            cur.angular_radius_rad,
+            cls,
+            interval,
+            bsm_score,
+        )
+
+    def _bsm_score(self, ref: Observation) -> float:
+        assert self._bsm is not None
+        r0, r1 = self._record(ref.frame_index), self._frames[-1]
+        if (
+            r0 is None
+            or r0.gray is None
+            or r1.gray is None
+            or r0.R_ned_from_cam is None
+            or r1.R_ned_from_cam is None
+            or r0.pos_ned_m is None
+            or r1.pos_ned_m is None
+        ):
+            return math.nan
+        start = self._timer()
+        warped = self._bsm_warps.get(ref.frame_index) if self._bsm_warps_for == r1.index else None
+        if warped is None:
+            warped = self._bsm.warp_current_into_earlier(
+                r1.gray, r0.R_ned_from_cam, r1.R_ned_from_cam, r0.pos_ned_m, r1.pos_ned_m
+            )
+            if self._bsm_warps_for != r1.index:
+                self._bsm_warps = {}
+                self._bsm_warps_for = r1.index
+            self._bsm_warps[ref.frame_index] = warped
+        u, v = ref.centroid_px
+        px_size = float(
+            self.camera.pixel_size_map_rad[
+                min(int(v), self.camera.height - 1), min(int(u), self.camera.width - 1)
+            ]
+        )
+        radius_px = ref.angular_radius_rad / max(px_size, 1e-9)
+        score = self._bsm.score(r0.gray, warped, ref.centroid_px, radius_px)
+        self._bsm_s += self._timer() - start
+        return score
+
+    def _object_result(
+        self, track: Track, index: int, cache: dict[int, TranslationEstimate]
+    ) -> ObjectResult:
+        obs = track.last
+        cls = self._classify(track, index, cache)
+        hist = [o for o in track.history if index - o.frame_index < self.config.ttc.window_frames]
+        ttc = estimate_ttc(
+            np.array([o.t_us * 1e-6 for o in hist]),
+            np.array([o.angular_radius_rad for o in hist]),
+            np.array([o.bearing_ned for o in hist]),
+            self.config.ttc,
+        )
+        az, el = azel_from_bearing(obs.bearing_ned)
+        return ObjectResult(
+            track_id=track.track_id,
+            detected=not track.coasting,
+            state=cls.state,
+            reason=cls.reason,
+            bearing_cam=obs.bearing_cam,
+            bearing_body=obs.bearing_body,
+            bearing_ned=obs.bearing_ned,
+            azimuth_ned_rad=float(az),
+            elevation_ned_rad=float(el),
+            angular_radius_rad=obs.angular_radius_rad,
+            centroid_px=obs.centroid_px,
+            classification=cls,
+            ttc_s=ttc.ttc_s,
+            collision_course=ttc.collision_course,
+            miss_radii=ttc.miss_radii,
+        )

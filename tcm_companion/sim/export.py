@@ -1,0 +1,253 @@
+"""Simulated scenarios in memory (:class:`SimulatedScenario`) and on disk (``tcm-scenario/1``).
+
+:func:`make_scenario` builds a flight of :mod:`.scenarios`, its clocks and telemetry;
+the object quacks like :class:`tcm_companion.io.scenario.Scenario` (same attributes and
+frame iterator), rendering frames lazily. Its ``telemetry`` is decoded from the very
+``.tlog`` bytes that :func:`export_scenario` writes, through the same reader, so replaying
+the in-memory scenario and the exported directory gives identical inputs.
+
+Determinism: everything follows from ``seed`` (clocks, turbulence, telemetry noise and
+latency, sensor noise of frame ``i`` — independent of the order frames are rendered).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..core.camera import CameraModel
+from ..core.frames import FloatArray
+from ..core.telemetry import AttitudeSample, PositionSample, TelemetrySample
+from ..io.samples import sample_from_message
+from ..io.scenario import FORMAT, FRAMES_HEADER, TRUTH_HEADER, Truth
+from ..io.tlog import TlogStats, iter_tlog
+from .render import Renderer
+from .scenarios import SCENARIO_NAMES, FlightPlan, default_camera, flight_plan
+from .telemetry import TelemetryConfig, frame_times, make_clocks, synthesize_tlog, tlog_bytes
+from .world import World, field_world
+
+__all__ = ["SCENARIO_NAMES", "SimulatedScenario", "export_scenario", "make_scenario"]
+
+SENSOR_NOISE_DN = 2.5
+
+
+class SimulatedScenario:
+    """A simulated flight with the interface of :class:`~tcm_companion.io.scenario.Scenario`."""
+
+    root: Path | None = None
+    frames_dir: Path | None = None
+    video: Path | None = None
+
+    def __init__(
+        self,
+        plan: FlightPlan,
+        camera: CameraModel,
+        seed: int = 0,
+        noise: float = 1.0,
+        telemetry_config: TelemetryConfig | None = None,
+        fisheye_fov_deg: float = 180.0,
+        world: World | None = None,
+    ) -> None:
+        self.plan = plan
+        self.name = plan.name
+        self.description = f"{plan.description} (simulated, seed {seed}, noise {float(noise):g})"
+        self.camera = camera
+        self.seed = seed
+        self.noise = float(noise)
+        self.fisheye_fov_deg = fisheye_fov_deg
+        self.world = world if world is not None else field_world(plan.balls, plan.heading_rad)
+        self.telemetry_config = telemetry_config or TelemetryConfig()
+        self.warnings: list[str] = []
+
+        streams = np.random.SeedSequence([20160628, seed]).spawn(3)
+        clock_rng, frame_rng, tlm_rng = (np.random.default_rng(s) for s in streams)
+        self.clocks = make_clocks(clock_rng)
+        self.frame_times_us, self.frame_times_s = frame_times(
+            plan.n_frames, plan.fps, self.clocks, self.telemetry_config, frame_rng
+        )
+        margin = self.telemetry_config.margin_s
+        self.tlog_records = synthesize_tlog(
+            plan.vehicle,
+            float(self.frame_times_s[0]) - margin,
+            float(self.frame_times_s[-1]) + margin,
+            self.clocks,
+            tlm_rng,
+            self.telemetry_config,
+            noise=self.noise,
+        )
+        self.tlog_bytes = tlog_bytes(self.tlog_records)
+        self.tlog_stats = TlogStats()
+        self.telemetry: list[TelemetrySample] = []
+        for rec in iter_tlog(self.tlog_bytes, f"<simulated {self.name}>", self.tlog_stats):
+            sample = sample_from_message(rec.msg, rec.recv_us)
+            if sample is not None:
+                self.telemetry.append(sample)
+        self.truth: Truth = self._make_truth()
+        self._renderer: Renderer | None = None
+
+    # -- Scenario interface ------------------------------------------------------------
+    @property
+    def n_frames(self) -> int:
+        return len(self.frame_times_us)
+
+    def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
+        """Yield ``(index, t_us, BGR image)`` in order, rendering each frame on demand."""
+        for i, t in enumerate(self.frame_times_us):
+            yield i, int(t), self.read_frame(i)
+
+    def read_frame(self, index: int) -> np.ndarray:
+        """Render frame ``index`` (BGR uint8); the same image every time for a given seed."""
+        pos, R = self.vehicle_pose(index)
+        rng = np.random.default_rng(np.random.SeedSequence([20160628, self.seed, 1, index]))
+        return self.renderer.render(
+            float(self.frame_times_s[index]), pos, R, noise_dn=SENSOR_NOISE_DN * self.noise, rng=rng
+        )
+
+    def attitude_samples(self) -> list[AttitudeSample]:
+        return [s for s in self.telemetry if isinstance(s, AttitudeSample)]
+
+    def position_samples(self) -> list[PositionSample]:
+        return [s for s in self.telemetry if isinstance(s, PositionSample)]
+
+    # -- simulator extras --------------------------------------------------------------
+    @property
+    def renderer(self) -> Renderer:
+        if self._renderer is None:
+            self._renderer = Renderer(
+                self.world, self.camera, fisheye_fov_deg=self.fisheye_fov_deg, seed=self.seed
+            )
+        return self._renderer
+
+    def vehicle_pose(self, index: int) -> tuple[FloatArray, FloatArray]:
+        """True ``(pos_ned_m, R_ned_from_body)`` at frame ``index``'s capture time."""
+        t = float(self.frame_times_s[index])
+        return self.plan.vehicle.position_ned_m(t), self.plan.vehicle.R_ned_from_body(t)
+
+    def _make_truth(self) -> Truth:
+        t = self.frame_times_s
+        veh = self.plan.vehicle.position_ned_m(t)
+        frames, ids, moving, obj, radius, vehs = [], [], [], [], [], []
+        for i in range(self.n_frames):
+            for ball in self.plan.balls:
+                frames.append(i)
+                ids.append(ball.object_id)
+                moving.append(ball.moving)
+                obj.append(ball.centre_ned_m(float(t[i])))
+                radius.append(ball.radius_m)
+                vehs.append(veh[i])
+        return Truth(
+            frame=np.asarray(frames, dtype=np.int64),
+            object_id=np.asarray(ids, dtype=np.int64),
+            moving=np.asarray(moving, dtype=bool),
+            obj_ned_m=np.asarray(obj, dtype=np.float64).reshape(-1, 3),
+            obj_radius_m=np.asarray(radius, dtype=np.float64),
+            veh_ned_m=np.asarray(vehs, dtype=np.float64).reshape(-1, 3),
+        )
+
+
+def make_scenario(
+    name: str,
+    camera: CameraModel | None = None,
+    duration_s: float | None = None,
+    seed: int = 0,
+    noise: float = 1.0,
+) -> SimulatedScenario:
+    """Scenario ``name`` (one of ``SCENARIO_NAMES``) through ``camera`` (default: the
+    paper's 360×220 panorama). ``noise`` scales sensor and telemetry noise (0: none)."""
+    plan = flight_plan(name, duration_s=duration_s, seed=seed)
+    return SimulatedScenario(
+        plan, camera if camera is not None else default_camera(), seed=seed, noise=noise
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Export
+# --------------------------------------------------------------------------------------
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        text = repr(v)
+        return text if any(c in text for c in ".eE") else text + ".0"
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def scenario_toml(sim: SimulatedScenario) -> str:
+    """The ``scenario.toml`` text of a simulated scenario."""
+    lines = [
+        f"format = {_toml_value(FORMAT)}",
+        f"name = {_toml_value(sim.name)}",
+        f"description = {_toml_value(sim.description)}",
+        'frames_dir = "frames"',
+        "",
+        "[camera]",
+    ]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in sim.camera.to_dict().items()]
+    return "\n".join(lines) + "\n"
+
+
+_FRAME_NAME = re.compile(r"^\d{6}\.png$")
+
+
+def export_scenario(
+    sim: SimulatedScenario, out_dir: str | Path, progress: bool | None = None
+) -> Path:
+    """Write ``sim`` as a ``tcm-scenario/1`` directory; returns its path.
+
+    Renders every frame (a progress bar shows when ``progress`` is true, or by default
+    for more than 50 frames). Stale ``NNNNNN.png`` files beyond the last frame are removed.
+    """
+    out = Path(out_dir)
+    frames_dir = out / "frames"
+    frames_dir.mkdir(parents=True, exist_ok=True)
+    (out / "scenario.toml").write_text(scenario_toml(sim), encoding="utf-8")
+    (out / "telemetry.tlog").write_bytes(sim.tlog_bytes)
+
+    with open(out / "frames.csv", "w", newline="") as fh:
+        fh.write(",".join(FRAMES_HEADER) + "\n")
+        for i, t in enumerate(sim.frame_times_us):
+            fh.write(f"{i},{int(t)}\n")
+
+    tr = sim.truth
+    with open(out / "truth.csv", "w", newline="") as fh:
+        fh.write(",".join(TRUTH_HEADER) + "\n")
+        for j in range(len(tr.frame)):
+            o, v = tr.obj_ned_m[j], tr.veh_ned_m[j]
+            fh.write(
+                f"{int(tr.frame[j])},{int(tr.object_id[j])},{int(tr.moving[j])},"
+                f"{o[0]:.6f},{o[1]:.6f},{o[2]:.6f},{tr.obj_radius_m[j]:.6f},"
+                f"{v[0]:.6f},{v[1]:.6f},{v[2]:.6f}\n"
+            )
+
+    for stale in frames_dir.iterdir():
+        if _FRAME_NAME.match(stale.name) and int(stale.name[:6]) >= sim.n_frames:
+            stale.unlink()
+
+    show = progress if progress is not None else sim.n_frames > 50
+    frames: Iterator[tuple[int, int, np.ndarray]] = sim.iter_frames()
+    if show:
+        from tqdm import tqdm
+
+        frames = tqdm(frames, total=sim.n_frames, desc=f"rendering {sim.name}", unit="frame")
+    for i, _, img in frames:
+        path = frames_dir / f"{i:06d}.png"
+        if not cv2.imwrite(str(path), img):
+            raise OSError(f"{path}: cv2.imwrite failed")
+    return out

@@ -1,0 +1,254 @@
+"""What the autopilot would send and the companion would log during a simulated flight.
+
+Two clocks, as on the real vehicle:
+
+- the autopilot's boot clock (``time_boot_ms`` in every message): exact sample times,
+  millisecond resolution, the boot having happened a few minutes before the flight;
+- the companion's clock (Unix epoch µs): frame capture times (``t_us`` of frames.csv)
+  and the receive time of every ``.tlog`` record.
+
+Scenario time ``t_s = 0`` is the nominal capture time of frame 0. A message sampled at
+``t_s`` carries ``time_boot_ms = boot(t_s)`` and is logged at
+``companion(t_s) + latency``, latency = 3 ms + exponential jitter (mean 2 ms, capped at
+10 ms), through a FIFO link (records stay in send order, which is also receive order).
+
+Streams (all from system 1, component 1): HEARTBEAT 1 Hz (quadrotor, ArduPilot),
+ATTITUDE 50 Hz (Euler angles with a constant per-axis bias and white noise, body rates
+with noise), LOCAL_POSITION_NED 10 Hz (position and velocity with white noise) and
+GPS_RAW_INT 5 Hz. The noise amplitudes scale with ``noise``; ``noise = 0`` gives exact
+telemetry (latency is physics, not noise, and stays).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from ..io.tlog import TlogWriter
+from .scenarios import VehicleMotion, euler_zyx_rad
+
+EARTH_RADIUS_M = 6_378_137.0
+
+
+@dataclass(frozen=True)
+class TelemetryConfig:
+    """Rates, noise and link model of the synthetic telemetry."""
+
+    attitude_hz: float = 50.0
+    position_hz: float = 10.0
+    heartbeat_hz: float = 1.0
+    gps_hz: float = 5.0  # 0 disables GPS_RAW_INT
+    attitude_noise_deg: float = 0.3
+    attitude_bias_max_deg: float = 0.8
+    rate_noise_dps: float = 0.3
+    position_noise_m: float = 0.02
+    velocity_noise_mps: float = 0.03
+    gps_noise_m: float = 0.3
+    latency_min_us: int = 3_000
+    latency_jitter_mean_us: float = 2_000.0
+    latency_jitter_max_us: int = 10_000
+    link_us_per_message: int = 60  # serialisation time on the link (keeps FIFO order)
+    frame_jitter_us: int = 100
+    margin_s: float = 1.0  # telemetry before the first frame and after the last
+    origin_lat_deg: float = -27.4975
+    origin_lon_deg: float = 153.0137
+    origin_alt_m: float = 30.0
+
+
+@dataclass(frozen=True)
+class Clocks:
+    """Both clocks at scenario time 0 (integers, µs)."""
+
+    epoch_us_at_t0: int  # companion clock, µs since the Unix epoch
+    boot_us_at_t0: int  # autopilot clock, µs since boot
+
+    def companion_us(self, t_s: float | np.ndarray) -> np.ndarray:
+        return np.asarray(self.epoch_us_at_t0 + np.round(np.asarray(t_s) * 1e6), dtype=np.int64)
+
+    def t_s_from_boot_us(self, boot_us: np.ndarray) -> np.ndarray:
+        return (np.asarray(boot_us, dtype=np.int64) - self.boot_us_at_t0) / 1e6
+
+
+def make_clocks(rng: np.random.Generator) -> Clocks:
+    """Companion clock on 2024-06-10 plus up to a day; autopilot booted 2–10 min before."""
+    epoch = 1_718_000_000_000_000 + int(rng.integers(0, 86_400_000_000))
+    boot = int(rng.integers(120_000_000, 600_000_000))
+    return Clocks(epoch, boot)
+
+
+def frame_times(
+    n_frames: int, fps: float, clocks: Clocks, cfg: TelemetryConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Capture times of the frames: (companion ``t_us`` int64, scenario ``t_s`` float64).
+
+    Nominal ``k / fps`` with a ±``frame_jitter_us`` capture jitter; strictly increasing.
+    """
+    nominal_us = np.round(np.arange(n_frames) * (1e6 / fps)).astype(np.int64)
+    jitter = np.clip(
+        np.round(rng.normal(0.0, cfg.frame_jitter_us / 2.5, n_frames)),
+        -cfg.frame_jitter_us,
+        cfg.frame_jitter_us,
+    )
+    rel_us = nominal_us + jitter.astype(np.int64)
+    t_us = clocks.epoch_us_at_t0 + rel_us
+    if n_frames > 1 and not np.all(np.diff(t_us) > 0):
+        raise ValueError("frame jitter too large for the frame rate")
+    return t_us, rel_us / 1e6
+
+
+def _sample_times_ms(
+    hz: float, boot_start_us: int, boot_end_us: int, rng: np.random.Generator, jitter: bool
+) -> np.ndarray:
+    """Sample times on the boot clock (integer ms): a fixed period, random phase, ±1 ms jitter."""
+    period_ms = max(1, round(1000.0 / hz))
+    phase = int(rng.integers(0, period_ms))
+    first = -(-(boot_start_us // 1000 - phase) // period_ms)
+    last = (boot_end_us // 1000 - phase) // period_ms
+    ms = np.arange(first, last + 1, dtype=np.int64) * period_ms + phase
+    if jitter and period_ms >= 4:
+        ms = ms + rng.choice(np.array([-1, 0, 0, 0, 1]), ms.size)
+    return ms
+
+
+def synthesize_tlog(
+    vehicle: VehicleMotion,
+    t_start_s: float,
+    t_end_s: float,
+    clocks: Clocks,
+    rng: np.random.Generator,
+    cfg: TelemetryConfig | None = None,
+    noise: float = 1.0,
+) -> list[tuple[int, bytes]]:
+    """``(recv_us, packed MAVLink v2 frame)`` records in receive order over [t_start, t_end]."""
+    cfg = cfg or TelemetryConfig()
+    b0 = clocks.boot_us_at_t0 + round(t_start_s * 1e6)
+    b1 = clocks.boot_us_at_t0 + round(t_end_s * 1e6)
+    streams: list[tuple[str, np.ndarray]] = [
+        ("HEARTBEAT", _sample_times_ms(cfg.heartbeat_hz, b0, b1, rng, jitter=False)),
+        ("ATTITUDE", _sample_times_ms(cfg.attitude_hz, b0, b1, rng, jitter=True)),
+        ("LOCAL_POSITION_NED", _sample_times_ms(cfg.position_hz, b0, b1, rng, jitter=True)),
+    ]
+    if cfg.gps_hz > 0:
+        streams.append(("GPS_RAW_INT", _sample_times_ms(cfg.gps_hz, b0, b1, rng, jitter=True)))
+
+    payloads: dict[str, list[dict[str, float | int]]] = {}
+    bias = rng.uniform(-1.0, 1.0, 3) * math.radians(cfg.attitude_bias_max_deg) * noise
+    for kind, ms in streams:
+        t = clocks.t_s_from_boot_us(ms * 1000)
+        if kind == "ATTITUDE":
+            eul = euler_zyx_rad(vehicle.R_ned_from_body(t))
+            eul += bias + rng.normal(0.0, math.radians(cfg.attitude_noise_deg) * noise, eul.shape)
+            eul[:, 2] = np.angle(np.exp(1j * eul[:, 2]))  # wrap yaw to (-π, π]
+            rates = vehicle.body_rates_rps(t)
+            rates += rng.normal(0.0, math.radians(cfg.rate_noise_dps) * noise, rates.shape)
+            payloads[kind] = [
+                {"roll": e[0], "pitch": e[1], "yaw": e[2], "p": r[0], "q": r[1], "r": r[2]}
+                for e, r in zip(eul, rates)
+            ]
+        elif kind == "LOCAL_POSITION_NED":
+            pos = vehicle.position_ned_m(t) + rng.normal(
+                0.0, cfg.position_noise_m * noise, (t.size, 3)
+            )
+            vel = vehicle.velocity_ned_mps(t) + rng.normal(
+                0.0, cfg.velocity_noise_mps * noise, (t.size, 3)
+            )
+            payloads[kind] = [
+                {"x": p[0], "y": p[1], "z": p[2], "vx": v[0], "vy": v[1], "vz": v[2]}
+                for p, v in zip(pos, vel)
+            ]
+        elif kind == "GPS_RAW_INT":
+            pos = vehicle.position_ned_m(t) + rng.normal(0.0, cfg.gps_noise_m * noise, (t.size, 3))
+            vel = vehicle.velocity_ned_mps(t)
+            lat0 = math.radians(cfg.origin_lat_deg)
+            lat = cfg.origin_lat_deg + np.degrees(pos[:, 0] / EARTH_RADIUS_M)
+            lon = cfg.origin_lon_deg + np.degrees(pos[:, 1] / (EARTH_RADIUS_M * math.cos(lat0)))
+            alt = cfg.origin_alt_m - pos[:, 2]
+            speed = np.hypot(vel[:, 0], vel[:, 1])
+            cog = np.degrees(np.arctan2(vel[:, 1], vel[:, 0])) % 360.0
+            payloads[kind] = [
+                {"lat": la, "lon": lo, "alt": al, "vel": sp, "cog": cg}
+                for la, lo, al, sp, cg in zip(lat, lon, alt, speed, cog)
+            ]
+        else:
+            payloads[kind] = [{} for _ in ms]
+
+    # Send order: by sample time; at equal times heartbeat, attitude, position, GPS.
+    order = {"HEARTBEAT": 0, "ATTITUDE": 1, "LOCAL_POSITION_NED": 2, "GPS_RAW_INT": 3}
+    events = [(int(m), order[kind], kind, i) for kind, ms in streams for i, m in enumerate(ms)]
+    events.sort()
+
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    records: list[tuple[int, bytes]] = []
+    last_recv = -1
+    for boot_ms, _, kind, i in events:
+        values = payloads[kind][i]
+        msg = _encode(mav, kind, boot_ms, values)
+        t_s = (boot_ms * 1000 - clocks.boot_us_at_t0) / 1e6
+        send_us = int(clocks.companion_us(t_s))
+        jitter = min(rng.exponential(cfg.latency_jitter_mean_us), cfg.latency_jitter_max_us)
+        recv = send_us + cfg.latency_min_us + round(jitter)
+        recv = max(recv, last_recv + cfg.link_us_per_message)
+        last_recv = recv
+        records.append((recv, bytes(msg.pack(mav))))
+    return records
+
+
+def _encode(
+    mav: mavlink2.MAVLink, kind: str, boot_ms: int, v: dict[str, float | int]
+) -> mavlink2.MAVLink_message:
+    if kind == "HEARTBEAT":
+        return mav.heartbeat_encode(
+            mavlink2.MAV_TYPE_QUADROTOR,
+            mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+            | mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+            | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+            | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            4,  # ArduCopter GUIDED
+            mavlink2.MAV_STATE_ACTIVE,
+        )
+    if kind == "ATTITUDE":
+        return mav.attitude_encode(
+            boot_ms,
+            float(v["roll"]),
+            float(v["pitch"]),
+            float(v["yaw"]),
+            float(v["p"]),
+            float(v["q"]),
+            float(v["r"]),
+        )
+    if kind == "LOCAL_POSITION_NED":
+        return mav.local_position_ned_encode(
+            boot_ms,
+            float(v["x"]),
+            float(v["y"]),
+            float(v["z"]),
+            float(v["vx"]),
+            float(v["vy"]),
+            float(v["vz"]),
+        )
+    return mav.gps_raw_int_encode(
+        boot_ms * 1000,
+        3,  # 3D fix
+        round(float(v["lat"]) * 1e7),
+        round(float(v["lon"]) * 1e7),
+        round(float(v["alt"]) * 1000.0),
+        80,
+        120,
+        round(float(v["vel"]) * 100.0),
+        round(float(v["cog"]) * 100.0) % 36000,
+        14,
+    )
+
+
+def tlog_bytes(records: list[tuple[int, bytes]]) -> bytes:
+    """The records as a ``.tlog`` file's bytes (written with :class:`TlogWriter`)."""
+    buf = io.BytesIO()
+    w = TlogWriter(buf)
+    for recv_us, frame in records:
+        w.write(recv_us, frame)
+    return buf.getvalue()

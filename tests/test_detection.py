@@ -1,0 +1,574 @@
+"""Red-ball detector: accuracy through every camera model, look-alikes rejected, speed.
+
+Synthetic frames come from an analytic ray caster written here (a shaded sphere,
+supersampled so its rim is anti-aliased), so the true bearing and angular radius are
+exact; the example scenarios in shared/ check the detector against an independent
+renderer through the telemetry attitude.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tcm_companion.core.camera import CameraModel, Equirectangular, Fisheye, Pinhole
+from tcm_companion.core.detection import (
+    Detection,
+    DetectionConfig,
+    Detector,
+    angular_radius_from_solid_angle,
+)
+from tcm_companion.core.frames import angle_between, bearing_from_azel, normalize
+from tcm_companion.core.telemetry import TelemetryBuffer
+from tcm_companion.io.scenario import load_scenario
+
+from .conftest import example_path
+
+CAMERAS: dict[str, CameraModel] = {
+    "equirectangular": Equirectangular(360, 220),
+    "pinhole": Pinhole(
+        640, 480, (0.0, -10.0, 50.0), fx=320, fy=320, cx=320, cy=240, dist=(-0.05, 0.01, 0, 0, 0)
+    ),
+    "pinhole-strong": Pinhole(
+        800, 600, fx=500, fy=480, cx=410, cy=290, dist=(-0.2, 0.05, 0.001, -0.002, 0.01)
+    ),
+    "fisheye": Fisheye(
+        640, 640, (0.0, -10.0, -45.0), fx=200, fy=200, cx=320, cy=320, dist=(0.02, -0.005, 0.001, 0)
+    ),
+}
+
+BALL_BGR = (35.0, 30.0, 205.0)
+SKY_BGR = np.array([225.0, 190.0, 150.0])
+GRASS_BGR = np.array([60.0, 130.0, 95.0])
+
+Background = Callable[[np.ndarray], np.ndarray]
+
+
+def field_background(bearing_cam: np.ndarray) -> np.ndarray:
+    """Sky above the camera's horizon, grass below, both with slow shading (BGR float)."""
+    b = np.nan_to_num(bearing_cam)
+    up = -b[..., 2]
+    az = np.arctan2(b[..., 1], b[..., 0])
+    sky = SKY_BGR - 35.0 * up[..., None]
+    grass = GRASS_BGR * (1.0 + 0.12 * np.sin(3.0 * az) * np.cos(4.0 * up))[..., None]
+    img = np.where((up > 0.0)[..., None], sky, grass)
+    return np.where(np.isfinite(bearing_cam[..., :1]), img, 0.0)
+
+
+@dataclass(frozen=True)
+class Ball:
+    centre_cam: np.ndarray  # unit bearing, camera FRD
+    alpha_rad: float
+    albedo_bgr: tuple[float, float, float] = BALL_BGR
+
+
+def ball_at(az_deg: float, el_deg: float, alpha_deg: float) -> Ball:
+    centre = bearing_from_azel(math.radians(az_deg), math.radians(el_deg))
+    return Ball(centre, math.radians(alpha_deg))
+
+
+def _crop_for(cam: CameraModel, ball: Ball) -> tuple[int, int, int, int]:
+    """Pixel box (x0, y0, x1, y1) holding the ball's image; x may pass a panorama's seam."""
+    c = ball.centre_cam
+    e1 = normalize(np.cross(c, [0.0, 0.0, 1.0] if abs(c[2]) < 0.9 else [0.0, 1.0, 0.0]))
+    e2 = np.cross(c, e1)
+    phi = np.linspace(0.0, 2.0 * math.pi, 360)[:, None]
+    a = 1.3 * ball.alpha_rad
+    ring = math.cos(a) * c + math.sin(a) * (np.cos(phi) * e1 + np.sin(phi) * e2)
+    px = cam.pixel_from_bearing_cam(np.vstack([ring, c]))
+    px = px[np.all(np.isfinite(px), axis=1)]
+    xs = px[:, 0]
+    if isinstance(cam, Equirectangular) and np.ptp(xs) > cam.width / 2:
+        xs = np.where(xs < cam.width / 2, xs + cam.width, xs)
+    x0, x1 = math.floor(xs.min()) - 2, math.ceil(xs.max()) + 2
+    y0 = max(math.floor(px[:, 1].min()) - 2, 0)
+    y1 = min(math.ceil(px[:, 1].max()) + 2, cam.height)
+    if not isinstance(cam, Equirectangular):
+        x0, x1 = max(x0, 0), min(x1, cam.width)
+    return x0, y0, x1, y1
+
+
+def render(
+    cam: CameraModel,
+    balls: Sequence[Ball],
+    *,
+    light_cam: Sequence[float] = (0.2, 0.8, -0.55),
+    ambient: float = 0.25,
+    specular: float = 0.0,
+    supersample: int = 8,
+    noise: float = 2.0,
+    blur_px: float = 0.0,
+    seed: int = 0,
+    background: Background = field_background,
+) -> np.ndarray:
+    """BGR uint8 frame of shaded spheres, anti-aliased by supersampling, in camera FRD.
+
+    Each sphere is Lambertian (``ambient`` + diffuse towards ``light_cam``, the
+    direction to the light) with an optional Phong highlight; samples are averaged on
+    the 8-bit scale like a simple renderer's anti-aliasing.
+    """
+    img = background(cam.bearing_map_cam)
+    light = normalize(np.asarray(light_cam, dtype=np.float64))
+    sub = (np.arange(supersample) + 0.5) / supersample
+    for ball in balls:
+        x0, y0, x1, y1 = _crop_for(cam, ball)
+        u = (np.arange(x0, x1)[:, None] + sub[None, :]).reshape(-1)
+        v = (np.arange(y0, y1)[:, None] + sub[None, :]).reshape(-1)
+        uu, vv = np.meshgrid(u, v)
+        if isinstance(cam, Equirectangular):
+            uu = uu % cam.width
+        d = cam.bearing_cam_from_pixel(np.stack([uu, vv], axis=-1))
+        ok = np.isfinite(d[..., 0])
+        d = np.nan_to_num(d)
+        c = ball.centre_cam
+        dist = 1.0 / math.sin(ball.alpha_rad)  # unit sphere radius
+        cos_g = d @ c
+        disc = 1.0 - dist * dist * (1.0 - cos_g**2)
+        hit = ok & (disc > 0.0) & (cos_g > 0.0)
+        t = dist * cos_g - np.sqrt(np.maximum(disc, 0.0))
+        normal = t[..., None] * d - dist * c
+        shade = ambient + (1.0 - ambient) * np.clip(normal @ light, 0.0, None)
+        colour = np.asarray(ball.albedo_bgr) * shade[..., None]
+        if specular > 0.0:
+            half = normalize(light - d)
+            colour = (
+                colour
+                + 255.0 * specular * (np.clip(np.sum(normal * half, -1), 0, 1) ** 40)[..., None]
+            )
+        samples = np.where(hit[..., None], np.clip(colour, 0.0, 255.0), background(d))
+        samples = np.where(ok[..., None], samples, 0.0)
+        block = samples.reshape(y1 - y0, supersample, x1 - x0, supersample, 3).mean(axis=(1, 3))
+        cols = np.arange(x0, x1) % cam.width
+        img[y0:y1, cols] = block
+    if blur_px > 0.0:
+        img = cv2.GaussianBlur(img, (0, 0), blur_px)
+    if noise > 0.0:
+        img = img + np.random.default_rng(seed).normal(0.0, noise, img.shape)
+    img = np.where(np.isfinite(cam.bearing_map_cam[..., :1]), img, 0.0)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def pixel_errors(cam: CameraModel, det: Detection, ball: Ball) -> tuple[float, float]:
+    """(relative radius error, bearing error in pixels at the ball's centre)."""
+    px = cam.pixel_from_bearing_cam(ball.centre_cam)
+    pixel_rad = float(cam.pixel_size_map_rad[int(px[1]), int(px[0]) % cam.width])
+    bearing_err = float(angle_between(det.bearing_cam, ball.centre_cam)) / pixel_rad
+    return det.angular_radius_rad / ball.alpha_rad - 1.0, bearing_err
+
+
+_DETECTORS: dict[str, Detector] = {}
+
+
+def detector(name: str) -> Detector:
+    if name not in _DETECTORS:
+        _DETECTORS[name] = Detector(CAMERAS[name])
+    return _DETECTORS[name]
+
+
+# -- geometry of the measurement ---------------------------------------------------
+
+
+def test_angular_radius_from_solid_angle_inverts_the_cap_formula() -> None:
+    for alpha in (1e-4, 0.01, 0.3, 1.5, 3.0):
+        omega = 2.0 * math.pi * (1.0 - math.cos(alpha))
+        assert angular_radius_from_solid_angle(omega) == pytest.approx(alpha, rel=1e-9)
+    assert angular_radius_from_solid_angle(0.0) == 0.0
+
+
+# (camera, azimuth, elevation, angular radius) in camera FRD, degrees
+DISC_CASES = [
+    ("equirectangular", -20.0, -20.0, 5.0),
+    ("equirectangular", 120.0, -58.0, 4.0),  # anisotropic pixels far from the equator
+    ("equirectangular", -60.0, 40.0, 3.0),  # against the sky
+    ("equirectangular", 30.0, -10.0, 2.0),  # small: about 2.5 px radius
+    ("equirectangular", 90.0, -30.0, 12.0),
+    ("pinhole", 0.0, -12.0, 3.0),
+    ("pinhole", 38.0, -28.0, 2.5),  # off-axis corner, distortion strongest
+    ("pinhole-strong", -30.0, -22.0, 3.0),
+    ("pinhole-strong", 25.0, 20.0, 4.0),
+    ("fisheye", 0.0, -15.0, 4.0),
+    ("fisheye", 78.0, -10.0, 3.0),  # 79° off axis, near the edge of the image
+    ("fisheye", -30.0, -72.0, 3.0),
+]
+
+
+@pytest.mark.parametrize(("cam_name", "az", "el", "alpha"), DISC_CASES)
+def test_shaded_disc_radius_within_2pct_and_bearing_within_0p1_px(
+    cam_name: str, az: float, el: float, alpha: float
+) -> None:
+    cam = CAMERAS[cam_name]
+    ball = ball_at(az, el, alpha)
+    dets = detector(cam_name).detect(render(cam, [ball], seed=abs(int(az * 7 + el))))
+    assert len(dets) == 1
+    rad_err, bearing_err_px = pixel_errors(cam, dets[0], ball)
+    assert abs(rad_err) < 0.02
+    assert bearing_err_px < 0.1
+    assert not dets[0].touches_border
+
+
+def test_highlight_inside_the_ball_is_part_of_it() -> None:
+    cam = CAMERAS["pinhole"]
+    ball = ball_at(5.0, -15.0, 6.0)
+    # Light from behind the camera: a bright, unsaturated highlight inside the disc.
+    img = render(cam, [ball], light_cam=(-0.8, -0.3, -0.5), specular=0.9)
+    dets = detector("pinhole").detect(img)
+    assert len(dets) == 1
+    rad_err, bearing_err_px = pixel_errors(cam, dets[0], ball)
+    assert abs(rad_err) < 0.02
+    assert bearing_err_px < 0.1
+
+
+def test_large_highlight_splitting_the_seeds_still_gives_one_object() -> None:
+    cam = CAMERAS["equirectangular"]
+    ball = ball_at(10.0, -25.0, 14.0)
+    img = render(cam, [ball], light_cam=(-0.9, 0.0, -0.4), specular=1.0)
+    dets = detector("equirectangular").detect(img)
+    assert len(dets) == 1
+    assert abs(pixel_errors(cam, dets[0], ball)[0]) < 0.03
+
+
+def test_blur_and_noise_keep_the_radius() -> None:
+    cam = CAMERAS["pinhole"]
+    ball = ball_at(-15.0, -20.0, 3.0)
+    dets = detector("pinhole").detect(render(cam, [ball], blur_px=0.8, noise=4.0))
+    assert len(dets) == 1
+    rad_err, bearing_err_px = pixel_errors(cam, dets[0], ball)
+    assert abs(rad_err) < 0.02
+    assert bearing_err_px < 0.1
+
+
+def test_backlit_ball_is_found_from_its_dark_side() -> None:
+    cam = CAMERAS["fisheye"]
+    ball = ball_at(-20.0, -20.0, 5.0)
+    img = render(cam, [ball], light_cam=(-0.3, 0.9, 0.3), ambient=0.22)
+    dets = detector("fisheye").detect(img)
+    assert len(dets) == 1
+    assert abs(pixel_errors(cam, dets[0], ball)[0]) < 0.02
+
+
+# -- panorama seam and borders ------------------------------------------------------
+
+
+@pytest.mark.parametrize("az", [180.0, 178.5, -178.0, 179.0])
+def test_blob_across_the_panorama_seam_is_one_object(az: float) -> None:
+    cam = CAMERAS["equirectangular"]
+    ball = ball_at(az, -15.0, 5.0)
+    dets = detector("equirectangular").detect(render(cam, [ball]))
+    assert len(dets) == 1
+    det = dets[0]
+    assert not det.touches_border
+    rad_err, bearing_err_px = pixel_errors(cam, det, ball)
+    assert abs(rad_err) < 0.02
+    assert bearing_err_px < 0.1
+    x0, _, x1, _ = det.bbox_px
+    assert 0 <= x0 < cam.width and x1 > x0
+    assert 0.0 <= det.centroid_px[0] < cam.width
+    expected_u = float(cam.pixel_from_bearing_cam(ball.centre_cam)[0])
+    du = (det.centroid_px[0] - expected_u + cam.width / 2) % cam.width - cam.width / 2
+    assert abs(du) < 0.3
+
+
+def test_seam_bbox_wraps_past_the_width() -> None:
+    cam = CAMERAS["equirectangular"]
+    det = detector("equirectangular").detect(render(cam, [ball_at(180.0, -15.0, 5.0)]))[0]
+    x1 = det.bbox_px[2]
+    assert x1 > cam.width  # columns x0 .. x1 - 1 modulo the width
+
+
+def test_partial_panorama_edge_is_a_border() -> None:
+    cam = Equirectangular(
+        200,
+        100,
+        azimuth_min_deg=-60,
+        azimuth_max_deg=40,
+        elevation_max_deg=30,
+        elevation_min_deg=-20,
+    )
+    ball = ball_at(-59.0, -5.0, 4.0)
+    dets = Detector(cam).detect(render(cam, [ball]))
+    assert len(dets) == 1 and dets[0].touches_border
+
+
+def test_ball_cut_by_the_image_edge_touches_the_border() -> None:
+    cam = CAMERAS["pinhole"]
+    # Ball centre just outside the right edge of the image.
+    edge = cam.bearing_cam_from_pixel(np.array([cam.width + 3.0, 300.0]))
+    ball = Ball(edge, math.radians(4.0))
+    dets = detector("pinhole").detect(render(cam, [ball]))
+    assert len(dets) == 1 and dets[0].touches_border
+
+
+def test_ball_against_a_fisheye_black_surround_touches_the_border() -> None:
+    cam = CAMERAS["fisheye"]
+    # The scenario format has no fisheye field of view: the lens's black surround is
+    # only in the image. Blank everything beyond 88° off axis, as EX-FISHEYE shows.
+    off_axis = np.arccos(np.clip(cam.bearing_map_cam[..., 0], -1.0, 1.0))
+
+    def surround(bearing_cam: np.ndarray) -> np.ndarray:
+        img = field_background(bearing_cam)
+        theta = np.arccos(np.clip(np.nan_to_num(bearing_cam[..., 0]), -1.0, 1.0))
+        return np.where((theta > math.radians(88.0))[..., None], 3.0, img)
+
+    ball = ball_at(86.0, -5.0, 4.0)
+    img = render(cam, [ball], background=surround)
+    assert np.any(img[off_axis > math.radians(88.5)].max(axis=1) <= 8)
+    dets = detector("fisheye").detect(img)
+    assert len(dets) == 1 and dets[0].touches_border
+
+
+# -- look-alikes ---------------------------------------------------------------------
+
+SMALL = Pinhole(160, 120, fx=120, fy=120, cx=80, cy=60)
+
+# RGB colours that are not the ball (strong, saturated red).
+LOOKALIKES_RGB = {
+    "shadow on grass": (35, 50, 30),
+    "shadow on dirt": (60, 40, 30),
+    "black": (4, 4, 4),
+    "dark grey": (50, 50, 50),
+    "grey": (128, 128, 128),
+    "white": (240, 240, 240),
+    "dark brown object": (60, 38, 25),
+    "dark maroon-brown object": (38, 20, 16),
+    "brown dirt": (130, 90, 55),
+    "reddish-brown dirt": (150, 75, 55),
+    "orange dirt/clay": (190, 110, 60),
+    "sand": (185, 155, 110),
+    "orange object": (255, 140, 0),
+    "safety orange": (255, 100, 0),
+    "light skin": (235, 195, 170),
+    "medium skin": (200, 140, 110),
+    "tanned skin": (170, 105, 75),
+    "dark skin": (120, 75, 55),
+    "washed-out red (weak red, no seed)": (200, 110, 110),
+}
+
+
+def _grass_frame(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = np.empty((SMALL.height, SMALL.width, 3))
+    img[:] = GRASS_BGR
+    img += rng.normal(0.0, 6.0, img.shape)
+    return img
+
+
+def _draw_patch(
+    img: np.ndarray, rgb: tuple[int, int, int], centre: tuple[int, int], r: int
+) -> None:
+    layer = np.zeros(img.shape[:2], np.uint8)
+    cv2.ellipse(layer, centre, (r, int(r * 0.7)), 20.0, 0, 360, 255, -1, cv2.LINE_AA)
+    alpha = (layer / 255.0)[..., None]
+    texture = 1.0 + 0.08 * np.sin(np.arange(img.shape[1]) * 0.9)[None, :, None]
+    colour = np.array(rgb[::-1], dtype=np.float64) * texture
+    img[:] = img * (1.0 - alpha) + colour * alpha
+
+
+@pytest.mark.parametrize("name", sorted(LOOKALIKES_RGB))
+def test_lookalike_is_not_detected(name: str) -> None:
+    img = _grass_frame()
+    _draw_patch(img, LOOKALIKES_RGB[name], (60, 50), 22)
+    _draw_patch(img, LOOKALIKES_RGB[name], (125, 90), 8)
+    frame = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    assert Detector(SMALL).detect(frame) == []
+
+
+def test_ball_among_lookalikes_is_the_only_detection() -> None:
+    img = _grass_frame(1).astype(np.float64)
+    for i, rgb in enumerate(LOOKALIKES_RGB.values()):
+        _draw_patch(img, rgb, (12 + (i % 7) * 22, 12 + (i // 7) * 40), 7)
+    base = np.clip(np.round(img), 0, 255)
+    ball = ball_at(0.0, -18.0, 5.0)
+
+    def scene(bearing_cam: np.ndarray) -> np.ndarray:
+        px = SMALL.pixel_from_bearing_cam(bearing_cam)
+        u = np.clip(np.nan_to_num(px[..., 0]).astype(int), 0, SMALL.width - 1)
+        v = np.clip(np.nan_to_num(px[..., 1]).astype(int), 0, SMALL.height - 1)
+        return base[v, u]
+
+    dets = Detector(SMALL).detect(render(SMALL, [ball], background=scene))
+    assert len(dets) == 1
+    assert float(angle_between(dets[0].bearing_cam, ball.centre_cam)) < math.radians(0.5)
+
+
+@pytest.mark.parametrize(
+    "rgb",
+    [
+        (130, 90, 55),  # brown dirt
+        (60, 40, 30),  # shadow on dirt
+        (190, 110, 60),  # orange clay
+        (185, 155, 110),  # sand
+        pytest.param(
+            (150, 75, 55),
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="known limit: reddish-brown dirt (hue 12.6°, S 0.63) passes the growth "
+                "thresholds, so a patch touching the ball is grown into it",
+            ),
+        ),
+    ],
+)
+def test_ball_next_to_dirt_or_shadow_keeps_its_size(rgb: tuple[int, int, int]) -> None:
+    """A dirt patch or shadow touching the ball is not grown into it."""
+    cam = CAMERAS["pinhole"]
+    ball = ball_at(0.0, -15.0, 3.0)
+    # The patch: an angular disc just below-left of the ball, overlapping its rim.
+    patch_centre = bearing_from_azel(math.radians(-2.5), math.radians(-18.5))
+
+    def scene(bearing_cam: np.ndarray) -> np.ndarray:
+        img = field_background(bearing_cam)
+        inside = np.nan_to_num(bearing_cam) @ patch_centre > math.cos(math.radians(3.0))
+        return np.where(inside[..., None], np.array(rgb[::-1], dtype=np.float64), img)
+
+    dets = detector("pinhole").detect(render(cam, [ball], background=scene))
+    assert len(dets) == 1
+    assert abs(pixel_errors(cam, dets[0], ball)[0]) < 0.03
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    hue_deg=st.floats(-14.0, 11.0),
+    sat=st.floats(0.73, 1.0),
+    val=st.floats(0.18, 1.0),
+)
+def test_every_strong_saturated_red_is_detected(hue_deg: float, sat: float, val: float) -> None:
+    """Seeds (and the cheap full-frame prefilter in front of them) accept the whole range."""
+    hsv = np.array([[[hue_deg % 360.0, sat, val]]], np.float32)
+    bgr = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
+    img = np.full((SMALL.height, SMALL.width, 3), 128, np.uint8)
+    cv2.circle(img, (70, 55), 9, tuple(float(c) * 255.0 for c in bgr), -1, cv2.LINE_AA)
+    dets = Detector(SMALL).detect(img)
+    assert len(dets) == 1
+
+
+def test_candidate_prefilter_passes_every_seed_colour() -> None:
+    """Exhaustive over 8-bit colours: the cheap full-frame test never drops a seed."""
+    cam = Pinhole(256, 256, fx=200, fy=200, cx=128, cy=128)
+    det = Detector(cam)
+    g, b = np.meshgrid(np.arange(256), np.arange(256))
+    seeds_total = extra = 0
+    for r in range(256):
+        img = np.dstack([b, g, np.full_like(g, r)]).astype(np.uint8)
+        seeds = det.seeds(img) > 0
+        candidates = det.candidates(img) > 0
+        assert not np.any(seeds & ~candidates), f"R={r}"
+        seeds_total += int(seeds.sum())
+        extra += int((candidates & ~seeds).sum())
+    assert seeds_total > 100_000
+    assert extra < 2 * seeds_total  # and it stays selective
+
+
+def test_two_balls_largest_first_and_max_detections() -> None:
+    cam = CAMERAS["equirectangular"]
+    small, big = ball_at(-40.0, -20.0, 3.0), ball_at(60.0, -25.0, 6.0)
+    img = render(cam, [small, big])
+    dets = detector("equirectangular").detect(img)
+    assert len(dets) == 2
+    assert dets[0].solid_angle_sr > dets[1].solid_angle_sr
+    assert float(angle_between(dets[0].bearing_cam, big.centre_cam)) < 1e-3
+    only = Detector(cam, DetectionConfig(max_detections=1)).detect(img)
+    assert len(only) == 1 and only[0].solid_angle_sr == dets[0].solid_angle_sr
+
+
+def test_no_red_returns_nothing() -> None:
+    cam = CAMERAS["equirectangular"]
+    assert detector("equirectangular").detect(render(cam, [])) == []
+
+
+def test_detection_fields_are_consistent() -> None:
+    cam = CAMERAS["pinhole"]
+    ball = ball_at(10.0, -10.0, 4.0)
+    det = detector("pinhole").detect(render(cam, [ball]))[0]
+    assert np.linalg.norm(det.bearing_cam) == pytest.approx(1.0)
+    assert det.angular_radius_rad == pytest.approx(
+        angular_radius_from_solid_angle(det.solid_angle_sr)
+    )
+    x0, y0, x1, y1 = det.bbox_px
+    u, v = det.centroid_px
+    assert x0 < u < x1 and y0 < v < y1
+    u_true, v_true = cam.pixel_from_bearing_cam(ball.centre_cam)
+    assert abs(u - u_true) < 0.3 and abs(v - v_true) < 0.3
+    assert det.area_px == pytest.approx(float(np.pi * (x1 - x0) * (y1 - y0) / 4.0), rel=0.15)
+    assert 0.5 < det.score <= 1.0
+
+
+def test_bad_inputs_raise() -> None:
+    with pytest.raises(ValueError, match="seed_hue_deg"):
+        DetectionConfig(seed_hue_deg=(-40.0, 12.0))
+    with pytest.raises(ValueError, match="grow_min_saturation"):
+        DetectionConfig(grow_min_saturation=0.9)
+    with pytest.raises(ValueError, match="low < high"):
+        DetectionConfig(membership_clip=(1.0, 0.0))
+    with pytest.raises(ValueError, match="BGR uint8"):
+        detector("pinhole").detect(np.zeros((480, 640), np.uint8))
+    with pytest.raises(ValueError, match="640x480"):
+        detector("pinhole").detect(np.zeros((100, 100, 3), np.uint8))
+
+
+# -- the independent examples ------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["EX-T90", "EX-PINHOLE", "EX-FISHEYE"])
+def test_examples_bearing_and_radius_match_truth(name: str) -> None:
+    scenario = load_scenario(example_path(name))
+    assert scenario.truth is not None
+    truth = scenario.truth
+    buf = TelemetryBuffer(maxlen=100_000, max_extrapolation_us=10_000_000)
+    buf.extend(scenario.telemetry)
+    cam = scenario.camera
+    det = Detector(cam)
+    bearing_err_deg, log_ratio, frames = [], [], []
+    for i, t_us, img in scenario.iter_frames():
+        dets = det.detect(img)
+        assert len(dets) == 1, f"frame {i}: {len(dets)} detections"
+        assert not dets[0].touches_border
+        R_ned_from_body = buf.attitude_at(t_us)
+        assert R_ned_from_body is not None
+        R_ned_from_cam = R_ned_from_body @ cam.R_body_from_cam
+        row = truth.rows_for_frame(i)[0]
+        los = truth.obj_ned_m[row] - truth.veh_ned_m[row]
+        rng = float(np.linalg.norm(los))
+        bearing_err_deg.append(
+            math.degrees(float(angle_between(R_ned_from_cam @ dets[0].bearing_cam, los / rng)))
+        )
+        alpha_true = math.asin(truth.obj_radius_m[row] / rng)
+        log_ratio.append(math.log(dets[0].angular_radius_rad / alpha_true))
+        frames.append(i)
+    # The telemetry attitude carries up to ~1° of bias and ~0.3° of noise by design.
+    assert np.median(bearing_err_deg) < 1.2
+    assert np.percentile(bearing_err_deg, 95) < 2.0
+    lr = np.asarray(log_ratio)
+    assert np.median(np.abs(lr)) < 0.02  # radius within 2% (measured: under 0.4%)
+    # Frame-to-frame jitter of ln α around the truth (TCM divides radii 1 s apart).
+    detrended = lr - np.polyval(np.polyfit(frames, lr, 1), frames)
+    assert np.std(detrended) < 0.006
+
+
+# -- speed ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("width", "height", "budget_ms"), [(360, 220, 3.0), (900, 550, 8.0)])
+def test_detect_is_fast(width: int, height: int, budget_ms: float) -> None:
+    """Loose bound (targets: 0.5 ms and 2 ms single-threaded); catches a full-frame slip."""
+    cam = Equirectangular(width, height)
+    img = render(cam, [ball_at(40.0, -15.0, 6.0)], supersample=2)
+    det = Detector(cam)
+    det.detect(img)
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        times = []
+        for _ in range(30):
+            t0 = time.perf_counter()
+            det.detect(img)
+            times.append(time.perf_counter() - t0)
+    finally:
+        cv2.setNumThreads(threads)
+    assert np.median(times) * 1e3 < budget_ms

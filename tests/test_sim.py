@@ -1,0 +1,256 @@
+"""Simulator: export round trip, geometry of the rendered ball, telemetry, determinism."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+
+from tcm_companion.core.camera import CameraModel, Equirectangular, Fisheye, Pinhole
+from tcm_companion.core.frames import slerp_rotation
+from tcm_companion.core.telemetry import AttitudeSample, PositionSample
+from tcm_companion.io.scenario import load_scenario
+from tcm_companion.io.tlog import iter_tlog
+from tcm_companion.sim import SCENARIO_NAMES, export_scenario, flight_plan, make_scenario
+from tcm_companion.sim.scenarios import euler_zyx_rad
+
+CAMERAS: dict[str, CameraModel] = {
+    "equirectangular": Equirectangular(360, 220),
+    "pinhole": Pinhole(
+        320,
+        240,
+        (0.0, -10.0, 90.0),
+        fx=200.0,
+        fy=200.0,
+        cx=160.0,
+        cy=120.0,
+        dist=(-0.05, 0.01, 0.0, 0.0, 0.0),
+    ),
+    "fisheye": Fisheye(
+        320,
+        320,
+        (0.0, -10.0, 60.0),
+        fx=100.0,
+        fy=100.0,
+        cx=160.0,
+        cy=160.0,
+        dist=(0.02, -0.005, 0.001, 0.0),
+    ),
+}
+
+
+def red_mask(bgr: np.ndarray) -> np.ndarray:
+    """Saturated red pixels (the ball, shaded side included; not the brown dirt)."""
+    b, g, r = (bgr[..., i].astype(np.int32) for i in range(3))
+    return (r > 40) & (r * 10 > 16 * g) & (r * 10 > 16 * b)
+
+
+def attitude_at(sim, t_us: int) -> np.ndarray:
+    """Telemetry attitude at a frame time: boot clock → companion clock by the lower
+    envelope of (receive - boot), then slerp between the bracketing samples."""
+    att = [s for s in sim.telemetry if isinstance(s, AttitudeSample)]
+    offset = min(s.recv_us - s.time_boot_us for s in att)
+    boot = np.array([s.time_boot_us for s in att])
+    tb = t_us - offset
+    j = int(np.searchsorted(boot, tb))
+    a, b = att[j - 1], att[j]
+    s = (tb - a.time_boot_us) / (b.time_boot_us - a.time_boot_us)
+    return slerp_rotation(a.R_ned_from_body, b.R_ned_from_body, s)
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+
+
+def test_export_round_trip(tmp_path):
+    sim = make_scenario("TWO", camera=Equirectangular(120, 74), duration_s=0.2, seed=3)
+    out = export_scenario(sim, tmp_path / "two", progress=False)
+    sc = load_scenario(out)
+    assert sc.warnings == []
+    assert sc.name == sim.name == "TWO"
+    assert sc.description == sim.description
+    assert sc.camera.to_dict() == sim.camera.to_dict()
+    np.testing.assert_array_equal(sc.frame_times_us, sim.frame_times_us)
+    assert sc.n_frames == sim.n_frames == 5
+    assert len(sc.telemetry) == len(sim.telemetry) > 0
+    for a, b in zip(sc.telemetry, sim.telemetry):
+        assert type(a) is type(b)
+        assert (a.time_boot_us, a.recv_us) == (b.time_boot_us, b.recv_us)
+        if isinstance(a, AttitudeSample):
+            np.testing.assert_array_equal(a.R_ned_from_body, b.R_ned_from_body)
+    assert sc.tlog_stats.decoded == sim.tlog_stats.decoded
+    assert sc.truth is not None
+    np.testing.assert_array_equal(sc.truth.frame, sim.truth.frame)
+    np.testing.assert_array_equal(sc.truth.object_id, sim.truth.object_id)
+    np.testing.assert_array_equal(sc.truth.moving, sim.truth.moving)
+    np.testing.assert_allclose(sc.truth.obj_ned_m, sim.truth.obj_ned_m, atol=1e-6)
+    np.testing.assert_allclose(sc.truth.veh_ned_m, sim.truth.veh_ned_m, atol=1e-6)
+    assert sorted(set(sc.truth.object_id.tolist())) == [1, 2]
+    for (i, t, img), (j, u, ref) in zip(sc.iter_frames(), sim.iter_frames()):
+        assert (i, t) == (j, u)
+        np.testing.assert_array_equal(img, ref)
+    header = (out / "truth.csv").read_text().splitlines()[0]
+    assert header == "frame,object_id,moving,obj_n,obj_e,obj_d,obj_radius_m,veh_n,veh_e,veh_d"
+    assert (out / "frames.csv").read_text().splitlines()[0] == "frame,t_us"
+    assert sorted(p.name for p in (out / "frames").iterdir()) == [f"{i:06d}.png" for i in range(5)]
+
+
+@pytest.mark.parametrize("cam_name", list(CAMERAS))
+def test_truth_ball_projects_onto_red_pixels(cam_name):
+    cam = CAMERAS[cam_name]
+    sim = make_scenario("T45", camera=cam, duration_s=1.0, seed=1)
+    bearings = cam.bearing_map_cam
+    for i in (0, 12, 24):
+        img = sim.read_frame(i)
+        red = red_mask(img)
+        assert red.sum() > 30, f"frame {i}: ball not visible"
+        row = sim.truth.rows_for_frame(i)[0]
+        b_ned = sim.truth.obj_ned_m[row] - sim.truth.veh_ned_m[row]
+        b_ned /= np.linalg.norm(b_ned)
+        R = attitude_at(sim, int(sim.frame_times_us[i])) @ cam.R_body_from_cam
+        b_cam = R.T @ b_ned
+        uv = cam.pixel_from_bearing_cam(b_cam)
+        assert cam.in_image(uv)
+        # Within the telemetry's bias + noise (~1.5°) of the red blob, and its centroid.
+        nearest = angle_deg(bearings[red], b_cam).min()
+        assert nearest < 1.5, f"frame {i}: {nearest:.2f}° from the nearest red pixel"
+        centroid = bearings[red].mean(axis=0)
+        assert angle_deg(centroid / np.linalg.norm(centroid), b_cam) < 1.5
+
+
+@pytest.mark.parametrize(
+    "cam",
+    [Equirectangular(720, 440), CAMERAS["pinhole"], CAMERAS["fisheye"]],
+    ids=["equirectangular", "pinhole", "fisheye"],
+)
+def test_ball_area_matches_angular_radius(cam):
+    sim = make_scenario("TS", camera=cam, duration_s=0.2, noise=0.0)
+    pos, R = sim.vehicle_pose(2)
+    centre, radius = sim.truth.obj_ned_m[2], float(sim.truth.obj_radius_m[2])
+    rho = math.asin(radius / np.linalg.norm(centre - pos))
+    disc_sr = 2.0 * math.pi * (1.0 - math.cos(rho))
+    omega = cam.solid_angle_map_sr
+    coverage = sim.renderer.sphere_coverage(centre, radius, pos, R)
+    assert np.sum(coverage * omega) == pytest.approx(disc_sr, rel=0.01)
+    red = red_mask(sim.read_frame(2))
+    assert np.sum(omega[red]) == pytest.approx(disc_sr, rel=0.04)
+
+
+def test_fisheye_black_outside_field_of_view():
+    cam = Fisheye(200, 200, fx=45.0, fy=45.0, cx=100.0, cy=100.0)  # lens wider than 180°
+    sim = make_scenario("TS", camera=cam, duration_s=0.04)
+    img = sim.read_frame(0)
+    theta = np.degrees(np.arccos(np.clip(cam.bearing_map_cam[..., 0], -1, 1)))
+    outside = ~np.isfinite(theta) | (theta > 90.0)
+    assert outside.any() and (~outside).any()
+    assert np.all(img[outside] == 0)
+    assert img[~outside].mean() > 40
+
+
+def test_telemetry_rates_and_clocks():
+    duration = 4.0
+    sim = make_scenario("T90", duration_s=duration, seed=2)
+    records = list(iter_tlog(sim.tlog_bytes))
+    span = duration + 2 * sim.telemetry_config.margin_s
+    counts = Counter(r.msg.get_type() for r in records)
+    for kind, hz in [
+        ("HEARTBEAT", 1),
+        ("ATTITUDE", 50),
+        ("LOCAL_POSITION_NED", 10),
+        ("GPS_RAW_INT", 5),
+    ]:
+        assert abs(counts[kind] - hz * span) <= 2, (kind, counts[kind])
+    recv = np.array([r.recv_us for r in records])
+    assert np.all(np.diff(recv) > 0), "records are in receive order"
+    for r in records:
+        assert (r.msg.get_srcSystem(), r.msg.get_srcComponent()) == (1, 1)
+    hb = next(r.msg for r in records if r.msg.get_type() == "HEARTBEAT")
+    assert hb.type == mavlink2.MAV_TYPE_QUADROTOR
+    assert hb.autopilot == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA
+
+    true_offset = sim.clocks.epoch_us_at_t0 - sim.clocks.boot_us_at_t0
+    for kind, period_ms in [("ATTITUDE", 20), ("LOCAL_POSITION_NED", 100)]:
+        msgs = [r for r in records if r.msg.get_type() == kind]
+        boot_ms = np.array([r.msg.time_boot_ms for r in msgs])
+        assert boot_ms[0] > 120_000, "the autopilot booted minutes before"
+        assert np.all(np.abs(np.diff(boot_ms) - period_ms) <= 2)
+        latency = np.array([r.recv_us for r in msgs]) - boot_ms * 1000 - true_offset
+        assert latency.min() >= 3000 and latency.max() <= 13_500
+        assert np.median(latency) < 6000
+
+    t = sim.frame_times_us
+    assert np.all(np.abs(np.diff(t) - 40_000) <= 200)
+    assert np.all(np.abs(t - (t[0] + np.round(np.arange(len(t)) * 40_000))) <= 200)
+    # Frames and telemetry share the companion clock: the first frame falls inside the log.
+    assert recv[0] < t[0] < t[-1] < recv[-1]
+
+    att = [s for s in sim.telemetry if isinstance(s, AttitudeSample)]
+    t_s = np.array([(s.time_boot_us - sim.clocks.boot_us_at_t0) / 1e6 for s in att])
+    measured = np.array([euler_zyx_rad(s.R_ned_from_body) for s in att])
+    err = np.degrees(measured - euler_zyx_rad(sim.plan.vehicle.R_ned_from_body(t_s)))
+    assert np.all(np.abs(err.mean(axis=0)) < 0.9)
+    assert np.all((err.std(axis=0) > 0.2) & (err.std(axis=0) < 0.4))
+    pos = [s for s in sim.telemetry if isinstance(s, PositionSample)]
+    tp = np.array([(s.time_boot_us - sim.clocks.boot_us_at_t0) / 1e6 for s in pos])
+    perr = np.array([s.pos_ned_m for s in pos]) - sim.plan.vehicle.position_ned_m(tp)
+    verr = np.array([s.vel_ned_mps for s in pos]) - sim.plan.vehicle.velocity_ned_mps(tp)
+    assert 0.01 < perr.std() < 0.03 and 0.02 < verr.std() < 0.045
+
+
+def test_determinism_with_seed():
+    cam = Equirectangular(120, 74)
+    a = make_scenario("T90", camera=cam, duration_s=0.4, seed=5)
+    b = make_scenario("T90", camera=cam, duration_s=0.4, seed=5)
+    c = make_scenario("T90", camera=cam, duration_s=0.4, seed=6)
+    assert a.tlog_bytes == b.tlog_bytes != c.tlog_bytes
+    np.testing.assert_array_equal(a.frame_times_us, b.frame_times_us)
+    later = a.read_frame(7)
+    np.testing.assert_array_equal(a.read_frame(2), b.read_frame(2))
+    np.testing.assert_array_equal(later, b.read_frame(7))
+    assert not np.array_equal(a.read_frame(2), c.read_frame(2))
+
+
+def test_scenario_catalogue():
+    assert SCENARIO_NAMES == ("TS", "T45", "T90", "RAISED", "INPLANE", "COLLISION", "HEADON", "TWO")
+    for name in SCENARIO_NAMES:
+        plan = flight_plan(name)
+        short = name in ("COLLISION", "HEADON")
+        assert (6.0 <= plan.duration_s <= 8.0) if short else plan.duration_s == 40.0
+        assert plan.fps == 25.0
+        t = np.linspace(0.0, plan.duration_s, 201)
+        veh = plan.vehicle.position_ned_m(t)
+        assert np.all(np.abs(veh[:, 2] + 2.0) < 0.1), "flies at 2 m"
+        for ball in plan.balls:
+            centre = ball.trajectory.position_ned_m(t)
+            rng_m = np.linalg.norm(centre - veh, axis=1)
+            assert rng_m.min() > 1.4
+            assert ball.radius_m == 0.375
+    ts = flight_plan("TS")
+    assert [b.moving for b in ts.balls] == [False]
+    assert [b.moving for b in flight_plan("T90").balls] == [True]
+    assert sorted(b.moving for b in flight_plan("TWO").balls) == [False, True]
+    raised = flight_plan("RAISED").balls[0].trajectory.position_ned_m(0.0)
+    assert raised[2] <= -3.5
+    inplane = flight_plan("INPLANE")
+    t = np.linspace(0, 40, 401)
+    assert np.allclose(inplane.balls[0].trajectory.position_ned_m(t)[:, 2], -2.0)
+
+    col = flight_plan("COLLISION")
+    t = np.linspace(0.0, col.duration_s, 50)
+    rel = col.balls[0].trajectory.position_ned_m(t) - col.vehicle.position_ned_m(t)
+    rng_m = np.linalg.norm(rel, axis=1)
+    assert rng_m[0] > 12.0 and 1.4 < rng_m[-1] < 2.0 and np.all(np.diff(rng_m) < 0)
+    assert angle_deg(rel[0], rel).max() < 2.0, "constant bearing"
+    head = flight_plan("HEADON")
+    rel = head.balls[0].trajectory.position_ned_m(0.0) - head.vehicle.position_ned_m(
+        np.array([0.0, head.duration_s])
+    )
+    assert 14.0 < np.linalg.norm(rel[0]) < 16.0 and 1.5 < np.linalg.norm(rel[1]) < 2.5
+    with pytest.raises(ValueError):
+        flight_plan("nope")
+
+    sim = make_scenario("TWO", duration_s=0.4)
+    assert len(sim.truth.frame) == 2 * sim.n_frames

@@ -25,21 +25,18 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tcm_companion.config import AppConfig  # noqa: E402
-from tcm_companion.core.pipeline import Pipeline  # noqa: E402
-from tcm_companion.eval.evaluate import match_frame, truth_ttc_s  # noqa: E402
-from tcm_companion.eval.metrics import roc  # noqa: E402
-from tcm_companion.io.scenario import load_scenario  # noqa: E402
-from tcm_companion.replay import run_replay  # noqa: E402
+from tcm_companion.config import AppConfig
+from tcm_companion.core.pipeline import Pipeline
+from tcm_companion.eval.evaluate import match_frame, truth_ttc_s
+from tcm_companion.eval.metrics import roc
+from tcm_companion.io.scenario import load_scenario
+from tcm_companion.replay import run_replay
 
 INTERVALS = tuple(range(5, 41))
 SIM = ("TS", "T45", "T90", "RAISED", "INPLANE", "COLLISION", "TWO")
@@ -60,7 +57,9 @@ RULES: list[tuple[str, tuple[int, ...], int, int]] = [
 ]
 
 
-def record(name: str, duration: float | None) -> tuple[str, list[tuple[int, int, bool, dict[int, float]]]]:
+def record(
+    name: str, duration: float | None
+) -> tuple[str, list[tuple[int, int, bool, dict[int, float]]]]:
     """(frame, track, truth moving, {interval: δ}) for every matched object-frame."""
     if name.startswith("EX-"):
         sc = load_scenario(EXAMPLES / name)
@@ -109,7 +108,9 @@ def main() -> None:
     duration = 15.0 if args.quick else 30.0
     names = [*SIM, "EX-T90", "EX-PINHOLE", "EX-FISHEYE"]
     with ProcessPoolExecutor(2) as pool:
-        data = dict(pool.map(record, names, [None if n == "COLLISION" else duration for n in names]))
+        data = dict(
+            pool.map(record, names, [None if n == "COLLISION" else duration for n in names])
+        )
     header = f"{'rule':<20}" + "".join(f"{n:>16}" for n in names) + "   pooled AUC (TS+T45+T90)"
     print(f"TCM accuracy / coverage at δ_th = {THRESHOLD}\n")
     print(header)
@@ -132,4 +133,3 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
-

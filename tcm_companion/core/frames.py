@@ -16,15 +16,16 @@ Euler angles follow MAVLink: ZYX (yaw, then pitch, then roll) of the body relati
 NED, ``R_ned_from_body = Rz(yaw) @ Ry(pitch) @ Rx(roll)``. The camera mount uses the same
 composition, ``R_body_from_cam = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
 
-Quaternions here are scalar-first ``(w, x, y, z)`` like MAVLink; SciPy's are
-scalar-last, and the conversion happens only in this module.
+Quaternions here are scalar-first ``(w, x, y, z)`` like MAVLink (SciPy's are
+scalar-last; the tests check these against SciPy).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 FloatArray = NDArray[np.float64]
 
@@ -65,30 +66,71 @@ def mount_rotation(mount_rpy_deg: tuple[float, float, float] | list[float]) -> F
 
 
 def quat_wxyz_from_rot(R_a_from_b: FloatArray) -> FloatArray:
-    """Scalar-first unit quaternion ``(w, x, y, z)`` of a rotation matrix."""
-    x, y, z, w = Rotation.from_matrix(R_a_from_b).as_quat()
-    q = np.array([w, x, y, z], dtype=np.float64)
+    """Scalar-first unit quaternion ``(w, x, y, z)``, ``w >= 0``, of a rotation matrix.
+
+    Shepperd's method (the largest of the four candidates is computed first), in plain
+    numpy because this runs for every attitude sample.
+    """
+    R = np.asarray(R_a_from_b, dtype=np.float64)
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    cands = (tr, R[0, 0], R[1, 1], R[2, 2])
+    i = int(np.argmax(cands))
+    if i == 0:
+        w = 0.5 * math.sqrt(max(1.0 + tr, 0.0))
+        f = 0.25 / w
+        q = np.array([w, (R[2, 1] - R[1, 2]) * f, (R[0, 2] - R[2, 0]) * f, (R[1, 0] - R[0, 1]) * f])
+    elif i == 1:
+        x = 0.5 * math.sqrt(max(1.0 + R[0, 0] - R[1, 1] - R[2, 2], 0.0))
+        f = 0.25 / x
+        q = np.array([(R[2, 1] - R[1, 2]) * f, x, (R[0, 1] + R[1, 0]) * f, (R[0, 2] + R[2, 0]) * f])
+    elif i == 2:
+        y = 0.5 * math.sqrt(max(1.0 - R[0, 0] + R[1, 1] - R[2, 2], 0.0))
+        f = 0.25 / y
+        q = np.array([(R[0, 2] - R[2, 0]) * f, (R[0, 1] + R[1, 0]) * f, y, (R[1, 2] + R[2, 1]) * f])
+    else:
+        z = 0.5 * math.sqrt(max(1.0 - R[0, 0] - R[1, 1] + R[2, 2], 0.0))
+        f = 0.25 / z
+        q = np.array([(R[1, 0] - R[0, 1]) * f, (R[0, 2] + R[2, 0]) * f, (R[1, 2] + R[2, 1]) * f, z])
+    q /= np.linalg.norm(q)
     return q if q[0] >= 0 else -q
 
 
 def rot_from_quat_wxyz(q_wxyz: FloatArray) -> FloatArray:
-    """Rotation matrix of a scalar-first quaternion (normalised first)."""
+    """Rotation matrix of a scalar-first quaternion (normalised first; NaN if degenerate)."""
     q = np.asarray(q_wxyz, dtype=np.float64)
     norm = float(np.linalg.norm(q))
     if not np.isfinite(norm) or norm < 1e-9:
         return np.full((3, 3), np.nan)
     w, x, y, z = q / norm
-    return np.asarray(Rotation.from_quat([x, y, z, w]).as_matrix(), dtype=np.float64)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def slerp_quat(q0_wxyz: FloatArray, q1_wxyz: FloatArray, s: float) -> FloatArray:
+    """Constant-rate interpolation of unit quaternions (extrapolates for s outside [0, 1])."""
+    q0 = np.asarray(q0_wxyz, dtype=np.float64)
+    q1 = np.asarray(q1_wxyz, dtype=np.float64)
+    dot = float(q0 @ q1)
+    if dot < 0.0:  # the short way round
+        q1, dot = -q1, -dot
+    dot = min(dot, 1.0)
+    angle = math.acos(dot)
+    if angle < 1e-9:
+        q = q0 + s * (q1 - q0)
+    else:
+        sa = math.sin(angle)
+        q = (math.sin((1.0 - s) * angle) / sa) * q0 + (math.sin(s * angle) / sa) * q1
+    return np.asarray(q / np.linalg.norm(q))
 
 
 def slerp_rotation(R0: FloatArray, R1: FloatArray, s: float) -> FloatArray:
-    """Spherical interpolation between two rotations, ``s`` in [0, 1] (extrapolates outside).
-
-    Computed as ``R0 @ exp(s · log(R0ᵀ R1))``, the constant-angular-rate path.
-    """
-    rel = Rotation.from_matrix(R0.T @ R1).as_rotvec()
-    step = Rotation.from_rotvec(s * rel).as_matrix()
-    return np.asarray(R0 @ step, dtype=np.float64)
+    """Spherical interpolation between two rotations, ``s`` in [0, 1] (extrapolates outside)."""
+    return rot_from_quat_wxyz(slerp_quat(quat_wxyz_from_rot(R0), quat_wxyz_from_rot(R1), s))
 
 
 def normalize(v: FloatArray) -> FloatArray:

@@ -11,6 +11,7 @@ timer and do not affect results). Flight, SITL and replay all call this same obj
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections import Counter, deque
@@ -435,7 +436,13 @@ class Pipeline:
     ) -> ObjectResult:
         obs = track.last
         cls = self._classify(track, index, cache)
-        hist = [o for o in track.history if index - o.frame_index < self.config.ttc.window_frames]
+        window = self.config.ttc.window_frames
+        hist = [
+            o
+            for o in itertools.islice(reversed(track.history), window)
+            if index - o.frame_index < window
+        ]
+        hist.reverse()
         ttc = estimate_ttc(
             np.array([o.t_us * 1e-6 for o in hist]),
             np.array([o.angular_radius_rad for o in hist]),

@@ -18,7 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .frames import FloatArray, rot_from_euler_zyx, rot_from_quat_wxyz, slerp_rotation
+from .frames import (
+    FloatArray,
+    quat_wxyz_from_rot,
+    rot_from_euler_zyx,
+    rot_from_quat_wxyz,
+    slerp_quat,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,37 +80,46 @@ class ClockSync:
         window_us: int = 10_000_000,
         percentile: float = 5.0,
         reboot_jump_us: int = 1_000_000,
+        capacity: int = 2048,
     ) -> None:
         self.window_us = window_us
         self.percentile = percentile
         self.reboot_jump_us = reboot_jump_us
-        self._obs: deque[tuple[int, int]] = deque()  # (boot_us, offset_us)
+        # Ring buffers of (boot_us, recv_us - boot_us); the newest ``capacity`` samples.
+        self._boot = np.zeros(capacity, dtype=np.float64)
+        self._offset = np.zeros(capacity, dtype=np.float64)
+        self._n = 0  # samples written since the last reset
+        self._newest_boot = -math.inf
         self._cached: float | None = None
         self.resets = 0
 
     def observe(self, boot_us: int, recv_us: int) -> None:
         """Add one (autopilot time, receive time) pair."""
-        if self._obs and boot_us < self._obs[-1][0] - self.reboot_jump_us:
-            self._obs.clear()
+        if self._n and boot_us < self._newest_boot - self.reboot_jump_us:
+            self._n = 0
+            self._newest_boot = -math.inf
             self.resets += 1
-        self._obs.append((boot_us, recv_us - boot_us))
-        newest = max(boot_us, self._obs[-1][0])
-        while self._obs and self._obs[0][0] < newest - self.window_us:
-            self._obs.popleft()
+        i = self._n % len(self._boot)
+        self._boot[i] = boot_us
+        self._offset[i] = recv_us - boot_us
+        self._n += 1
+        self._newest_boot = max(self._newest_boot, float(boot_us))
         self._cached = None
 
     @property
     def ready(self) -> bool:
-        return bool(self._obs)
+        return self._n > 0
 
     @property
     def offset_us(self) -> float:
         """Current estimate of ``companion_us - boot_us`` (NaN before any sample)."""
         if self._cached is None:
-            if not self._obs:
+            if not self._n:
                 return math.nan
-            offsets = np.fromiter((o for _, o in self._obs), dtype=np.float64, count=len(self._obs))
-            self._cached = float(np.percentile(offsets, self.percentile))
+            m = min(self._n, len(self._boot))
+            recent = self._offset[:m][self._boot[:m] >= self._newest_boot - self.window_us]
+            k = int(self.percentile / 100.0 * (len(recent) - 1))
+            self._cached = float(np.partition(recent, k)[k])
         return self._cached
 
     def to_companion_us(self, boot_us: float) -> float:
@@ -205,7 +220,12 @@ class TelemetryBuffer:
         if self.clock.resets != resets:  # autopilot rebooted: old samples are on another clock
             self._att.clear()
             self._pos.clear()
-        value = sample.R_ned_from_body if isinstance(sample, AttitudeSample) else sample
+        # Attitude is kept as quaternions: slerp needs them, and they are cheap to store.
+        value = (
+            quat_wxyz_from_rot(sample.R_ned_from_body)
+            if isinstance(sample, AttitudeSample)
+            else sample
+        )
         if not series.add(sample.time_boot_us, value):
             self.health.rejected[f"{kind} time not increasing"] += 1
             return False
@@ -239,17 +259,17 @@ class TelemetryBuffer:
             return None
         i, j = br
         t0, t1 = self._att.t_boot[i], self._att.t_boot[j]
-        R0 = self._att.values[i]
-        R1 = self._att.values[j]
-        assert isinstance(R0, np.ndarray) and isinstance(R1, np.ndarray)
+        q0 = self._att.values[i]
+        q1 = self._att.values[j]
+        assert isinstance(q0, np.ndarray) and isinstance(q1, np.ndarray)
         if i == j:
-            return R0 if abs(tb - t0) <= self.max_extrapolation_us else None
+            return rot_from_quat_wxyz(q0) if abs(tb - t0) <= self.max_extrapolation_us else None
         if t1 - t0 > self.max_gap_us:
             return None
         if tb < t0 - self.max_extrapolation_us or tb > t1 + self.max_extrapolation_us:
             return None
         s = (tb - t0) / (t1 - t0)
-        return slerp_rotation(R0, R1, s)
+        return rot_from_quat_wxyz(slerp_quat(q0, q1, s))
 
     def position_at(self, t_us: int) -> tuple[FloatArray, FloatArray] | None:
         """``(pos_ned_m, vel_ned_mps)`` at companion time ``t_us``, linear, or None."""

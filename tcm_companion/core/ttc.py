@@ -14,6 +14,7 @@ needs no range. The flag is raised when that predicted miss distance is small.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -40,11 +41,17 @@ class TTCEstimate:
     collision_course: bool
 
 
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    i, j = np.triu_indices(n, k=1)
+    return i, j
+
+
 def theil_sen_slope(t_s: FloatArray, y: FloatArray) -> tuple[float, float]:
     """Median pairwise slope and a robust spread of the pairwise slopes (MAD·1.4826)."""
     t = np.asarray(t_s, dtype=np.float64)
     v = np.asarray(y, dtype=np.float64)
-    i, j = np.triu_indices(len(t), k=1)
+    i, j = _pairs(len(t))
     dt = t[j] - t[i]
     keep = dt > 0
     if not np.any(keep):

@@ -87,7 +87,7 @@ def test_time_going_backwards_resets_history(pinhole) -> None:  # type: ignore[n
     s, frames, tel = pinhole
     pipe = Pipeline(s.camera)
     feed(pipe, frames[:15], tel)
-    i, t_us, img = frames[15]
+    _, t_us, img = frames[15]
     r = pipe.step(img, t_us - 10_000_000, [])
     assert pipe.health.time_backwards == 1
     assert all(o.state == "unknown" for o in r.objects)
@@ -101,5 +101,5 @@ def test_bad_frames_are_counted_and_skipped(pinhole) -> None:  # type: ignore[no
     assert r.objects == () and pipe.health.bad_frames == 1
     r = pipe.step(np.zeros((480, 640), np.uint8), int(frames[4][1]), [])
     assert pipe.health.bad_frames == 2
-    i, t_us, img = frames[5]
+    _, t_us, img = frames[5]
     assert len(pipe.step(img, t_us, []).objects) == 1

@@ -82,8 +82,13 @@ def _scenarios(args: argparse.Namespace) -> list[Any]:
     if args.sim:
         from .sim.scenarios import make_scenario
 
+        camera = None
         for name in args.sim:
-            out.append(make_scenario(name, duration_s=args.duration, seed=args.seed))
+            if args.camera is not None:
+                from .sim.cameras import preset_camera
+
+                camera = preset_camera(args.camera, None, name)
+            out.append(make_scenario(name, camera=camera, duration_s=args.duration, seed=args.seed))
     if not out:
         raise SystemExit("eval: give scenario directories and/or --sim NAME ...")
     return out
@@ -99,7 +104,7 @@ def run_evaluation(
     progress: bool = True,
 ) -> str:
     """Evaluate scenarios at each resolution; return the printable report (and write plots)."""
-    from .eval.evaluate import ResizedScenario, evaluate_scenario, summarize
+    from .eval.evaluate import at_resolution, evaluate_scenario, summarize
     from .eval.report import (
         methods_table,
         per_scenario_table,
@@ -116,7 +121,7 @@ def run_evaluation(
     for res in resolutions:
         group_evals = []
         for sc in scenarios:
-            src = sc if res is None else ResizedScenario(sc, *res)
+            src = sc if res is None else at_resolution(sc, *res)
             with _progress(
                 src.n_frames, f"{sc.name} {src.camera.width}x{src.camera.height}", progress
             ) as bar:
@@ -280,6 +285,12 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("scenarios", nargs="*", help="scenario directories (with truth.csv)")
     p.add_argument("--sim", nargs="+", metavar="NAME", help="also simulate these scenarios")
+    p.add_argument(
+        "--camera",
+        choices=("panorama", "pinhole", "fisheye"),
+        default=None,
+        help="camera for --sim scenarios (default: the paper's panorama)",
+    )
     p.add_argument("--duration", type=float, default=None)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(

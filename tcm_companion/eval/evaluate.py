@@ -50,6 +50,7 @@ class ObjectFrame:
     ttc_s: float = math.nan
     true_ttc_s: float = math.nan
     collision_course: bool = False
+    true_collision_course: bool = False
     interval_frames: int = 0
 
     def score(self, method: Method, cls: ClassifierConfig) -> float:
@@ -72,6 +73,28 @@ class ScenarioEval:
     interval_disparities: dict[int, list[tuple[bool, float]]] = field(default_factory=dict)
 
 
+def truth_collision_course(
+    truth: Truth, frame_times_us: np.ndarray, miss_radii: float, horizon_s: float
+) -> np.ndarray:
+    """Per truth row: does the current relative velocity bring the object within
+    ``miss_radii`` of its own radius of the camera, within ``horizon_s``?"""
+    out = np.zeros(len(truth.frame), dtype=bool)
+    for oid in truth.object_ids:
+        rows = np.nonzero(truth.object_id == oid)[0]
+        rows = rows[np.argsort(truth.frame[rows])]
+        if len(rows) < 3:
+            continue
+        rel = truth.obj_ned_m[rows] - truth.veh_ned_m[rows]
+        vel = np.gradient(rel, frame_times_us[truth.frame[rows]] * 1e-6, axis=0)
+        speed2 = np.maximum(np.sum(vel * vel, axis=1), 1e-12)
+        t_cpa = -np.sum(rel * vel, axis=1) / speed2
+        cpa = np.linalg.norm(rel + vel * t_cpa[:, None], axis=1)
+        out[rows] = (
+            (t_cpa > 0) & (t_cpa < horizon_s) & (cpa < miss_radii * truth.obj_radius_m[rows])
+        )
+    return out
+
+
 def truth_ttc_s(truth: Truth, frame_times_us: np.ndarray) -> np.ndarray:
     """True time to contact ``-d/ḋ`` (centre range) per truth row; NaN when receding."""
     out = np.full(len(truth.frame), np.nan)
@@ -90,7 +113,11 @@ def truth_ttc_s(truth: Truth, frame_times_us: np.ndarray) -> np.ndarray:
 
 
 def match_frame(
-    result: FrameResult, truth: Truth, frame: int, true_ttc: np.ndarray
+    result: FrameResult,
+    truth: Truth,
+    frame: int,
+    true_ttc: np.ndarray,
+    true_collision: np.ndarray | None = None,
 ) -> tuple[list[ObjectFrame], int]:
     """Truth objects of one frame matched to result objects (greedy by bearing)."""
     rows = truth.rows_for_frame(frame)
@@ -116,6 +143,7 @@ def match_frame(
             object_id=int(truth.object_id[r]),
             truth_moving=bool(truth.moving[r]),
             true_ttc_s=float(true_ttc[r]),
+            true_collision_course=bool(true_collision[r]) if true_collision is not None else False,
         )
         if best < 0 or best_ang > gate:
             out.append(ObjectFrame(matched=False, **base))  # type: ignore[arg-type]
@@ -167,6 +195,16 @@ class ResizedScenario:
                 yield i, t, cv2.resize(img, size, interpolation=cv2.INTER_AREA)
 
 
+def at_resolution(scenario: ScenarioLike, width: int, height: int) -> ScenarioLike:
+    """The scenario at another image size: re-rendered if simulated, else resized frames."""
+    if (width, height) == (scenario.camera.width, scenario.camera.height):
+        return scenario
+    rerender = getattr(scenario, "with_camera", None)
+    if rerender is not None:
+        return rerender(scenario.camera.scaled(width, height))  # type: ignore[no-any-return]
+    return ResizedScenario(scenario, width, height)
+
+
 def evaluate_scenario(
     scenario: ScenarioLike,
     config: AppConfig,
@@ -185,9 +223,13 @@ def evaluate_scenario(
     cfg = with_method(config, "tcm", bsm=with_bsm)
     pipe = Pipeline(scenario.camera, cfg.pipeline)
     true_ttc = truth_ttc_s(truth, scenario.frame_times_us)
+    ttc_cfg = cfg.pipeline.ttc
+    true_coll = truth_collision_course(
+        truth, scenario.frame_times_us, ttc_cfg.collision_miss_radii, ttc_cfg.collision_max_ttc_s
+    )
     ev = ScenarioEval(scenario.name, (scenario.camera.width, scenario.camera.height))
     for result in run_replay(scenario, cfg, pipe):
-        recs, false = match_frame(result, truth, result.frame_index, true_ttc)
+        recs, false = match_frame(result, truth, result.frame_index, true_ttc, true_coll)
         ev.records.extend(recs)
         ev.false_tracks += false
         ev.frame_ms.append(result.timings_ms.get("total", math.nan))

@@ -61,17 +61,29 @@ def methods_table(rows: Sequence[tuple[str, list[MethodSummary]]]) -> str:
     return "\n".join(lines)
 
 
-def ttc_table(evals: Sequence[ScenarioEval]) -> str:
-    lines = ["scenario      TTC rows  median |err|  p90 |err|  collision flagged"]
+def ttc_table(evals: Sequence[ScenarioEval], horizon_s: float = 10.0) -> str:
+    """TTC error where the object really approaches within ``horizon_s``, and the
+    collision-course flag against the truth's closest approach (precision / recall)."""
+    lines = [
+        f"scenario      TTC rows (true τ ≤ {horizon_s:g} s)  median |err|  p90 |err|   "
+        "collision flag: truth frames  precision  recall",
+    ]
     for ev in evals:
-        recs = [r for r in ev.records if math.isfinite(r.ttc_s) and math.isfinite(r.true_ttc_s)]
-        if not recs:
-            continue
-        err = np.array([abs(r.ttc_s - r.true_ttc_s) / r.true_ttc_s for r in recs])
-        flagged = np.mean([r.collision_course for r in recs])
+        recs = [r for r in ev.records if r.matched]
+        ttc = [
+            r
+            for r in recs
+            if math.isfinite(r.ttc_s) and math.isfinite(r.true_ttc_s) and r.true_ttc_s <= horizon_s
+        ]
+        err = np.array([abs(r.ttc_s - r.true_ttc_s) / r.true_ttc_s for r in ttc])
+        flagged = [r for r in recs if r.collision_course]
+        true_c = [r for r in recs if r.true_collision_course]
+        precision = np.mean([r.true_collision_course for r in flagged]) if flagged else math.nan
+        recall = np.mean([r.collision_course for r in true_c]) if true_c else math.nan
         lines.append(
-            f"{ev.name:<13} {len(recs):>8}  {_pct(float(np.median(err)))}       "
-            f"{_pct(float(np.percentile(err, 90)))}     {_pct(float(flagged))}"
+            f"{ev.name:<13} {len(ttc):>25}  {_pct(float(np.median(err)) if len(err) else math.nan)}      "
+            f"{_pct(float(np.percentile(err, 90)) if len(err) else math.nan)}   {len(true_c):>28}   "
+            f"{_pct(float(precision))}   {_pct(float(recall))}"
         )
     return "\n".join(lines)
 

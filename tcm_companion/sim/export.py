@@ -117,6 +117,18 @@ class SimulatedScenario:
         return [s for s in self.telemetry if isinstance(s, PositionSample)]
 
     # -- simulator extras --------------------------------------------------------------
+    def with_camera(self, camera: CameraModel) -> SimulatedScenario:
+        """The same flight (plan, seed, telemetry) seen through another camera."""
+        return SimulatedScenario(
+            self.plan,
+            camera,
+            seed=self.seed,
+            noise=self.noise,
+            telemetry_config=self.telemetry_config,
+            fisheye_fov_deg=self.fisheye_fov_deg,
+            world=self.world,
+        )
+
     @property
     def renderer(self) -> Renderer:
         if self._renderer is None:

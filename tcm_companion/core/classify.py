@@ -21,6 +21,7 @@ from typing import Literal
 
 import numpy as np
 
+from .frames import angle_between
 from .tcm import ecm_omega_rad, triangle_geometry
 
 Method = Literal["tcm", "ecm", "bsm", "fused"]
@@ -47,6 +48,12 @@ class ClassifierConfig:
     min_theta_rad: float = math.radians(10.0)  # closer to the translation axis: head-on
     min_baseline_m: float = 0.0  # autopilot |T| below this: small baseline (0: off)
     min_flow_parallax_rad: float = 0.0  # vision ground parallax below this: small baseline
+    # When the vehicle barely moved between the frames (vision parallax below egomotion's
+    # minimum, or autopilot |T| below hover_max_baseline_m), a stationary object keeps its
+    # bearing and size: decide on δ_hover = hypot(R_img - 1, angle(b0, b1)) instead of
+    # reporting "no translation" (method.md's hover extension).
+    hover_test: bool = True
+    hover_max_baseline_m: float = 0.05
 
     @property
     def intervals(self) -> tuple[int, ...]:
@@ -78,9 +85,33 @@ class Classification:
         return fused_score(self.disparity, self.omega_rad, config)
 
 
+def classify_hover(
+    b0_ned: np.ndarray,
+    b1_ned: np.ndarray,
+    alpha0_rad: float,
+    alpha1_rad: float,
+    config: ClassifierConfig,
+    interval_frames: int,
+) -> Classification:
+    """The hover test: with no translation, any change of bearing or size is motion.
+
+    ``hypot(R_img - 1, angle(b0, b1))`` is the object's displacement over its range, on
+    the same scale as the TCM disparity, so the same threshold applies. ECM has no
+    meaning without translation; its score stays NaN.
+    """
+    r_img = math.sin(alpha1_rad) / math.sin(alpha0_rad)
+    delta = math.hypot(r_img - 1.0, float(angle_between(b0_ned, b1_ned)))
+    c = Classification(
+        "unknown", "hover", disparity=delta, r_img=r_img, r_geo=1.0, interval_frames=interval_frames
+    )
+    return decide(c, config) if config.method in ("tcm", "fused") else c
+
+
 def fused_score(disparity: float, omega_rad: float, config: ClassifierConfig) -> float:
     """TCM+ECM: moving if either test fires (each covers the other's blind spot)."""
-    return max(disparity / config.tcm_threshold, omega_rad / config.ecm_threshold_rad)
+    scores = [disparity / config.tcm_threshold, omega_rad / config.ecm_threshold_rad]
+    finite = [x for x in scores if math.isfinite(x)]
+    return max(finite) if finite else math.nan
 
 
 def unknown(reason: str, interval_frames: int = 0) -> Classification:
@@ -127,13 +158,19 @@ def combine_pairs(pairs: list[Classification]) -> Classification:
     The geometry fields (ratios, angles, interval) are those of the pair with the
     largest disparity; the BSM score is the one pair that computed it.
     """
-    top = max(pairs, key=lambda c: c.disparity)
-    bsm = [c.bsm_score for c in pairs if math.isfinite(c.bsm_score)]
+    top = max(pairs, key=lambda c: c.disparity if math.isfinite(c.disparity) else -math.inf)
     return replace(
         top,
-        omega_rad=max(c.omega_rad for c in pairs),
-        bsm_score=bsm[0] if bsm else math.nan,
+        disparity=_peak([c.disparity for c in pairs]),
+        omega_rad=_peak([c.omega_rad for c in pairs]),
+        bsm_score=_peak([c.bsm_score for c in pairs]),
     )
+
+
+def _peak(values: list[float]) -> float:
+    """Largest finite value, NaN if none."""
+    finite = [v for v in values if math.isfinite(v)]
+    return max(finite) if finite else math.nan
 
 
 def hold(current: Classification, recent: list[Classification]) -> Classification:

@@ -29,7 +29,7 @@ Pure numpy, deterministic (seeded RNG), no IO.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -584,7 +584,12 @@ def fuse(
     """
     cfg = config or EgomotionConfig()
     if not vision.valid and not autopilot.valid:
-        return TranslationEstimate.invalid("fused", vision.n_points)
+        # Keep what each saw of the motion: the classifier's hover test needs it.
+        return replace(
+            TranslationEstimate.invalid("fused", vision.n_points),
+            parallax_rad=vision.parallax_rad,
+            magnitude_m=autopilot.magnitude_m,
+        )
     if not vision.valid:
         return autopilot
     if not autopilot.valid:

@@ -16,7 +16,7 @@ import math
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import cv2
@@ -28,6 +28,7 @@ from .classify import (
     Classification,
     ClassifierConfig,
     State,
+    classify_hover,
     classify_pair,
     combine_pairs,
     decide,
@@ -358,7 +359,15 @@ class Pipeline:
         memory.append((index, combined))
         while memory and index - memory[0][0] > cls.hold_frames:
             memory.popleft()
-        return decide(hold(combined, [c for _, c in memory]), cls)
+        result = decide(hold(combined, [c for _, c in memory]), cls)
+        if (
+            result.state == "stationary"
+            and cur.frame_index - track.history[0].frame_index < cls.frame_interval
+        ):
+            # Motion can show over a short interval; its absence cannot: a young track is
+            # called stationary only once it has been seen for the full interval.
+            return replace(result, state="unknown", reason="warm-up")
+        return result
 
     def _classify_pair(
         self,
@@ -373,6 +382,18 @@ class Pipeline:
             cache[ref.frame_index] = self._translation(ref.frame_index, cur.frame_index)
         est = cache[ref.frame_index]
         if not est.valid:
+            hovering = est.parallax_rad < self.config.egomotion.min_parallax_rad or (
+                est.magnitude_m < cls.hover_max_baseline_m
+            )
+            if cls.hover_test and hovering and not (cur.touches_border or ref.touches_border):
+                return classify_hover(
+                    ref.bearing_ned,
+                    cur.bearing_ned,
+                    ref.angular_radius_rad,
+                    cur.angular_radius_rad,
+                    cls,
+                    interval,
+                )
             return unknown("no translation", interval)
         if cls.min_baseline_m > 0 and not (est.magnitude_m >= cls.min_baseline_m):
             if math.isfinite(est.magnitude_m):

@@ -25,7 +25,7 @@ STAGES = ("telemetry", "detect", "flow", "track", "classify", "bsm", "total")
 def _frames(
     resolution: tuple[int, int], n_frames: int
 ) -> tuple[object, list[tuple[int, int, np.ndarray]]]:
-    from .sim.scenarios import make_scenario
+    from .sim import make_scenario
 
     sim = make_scenario("T90", duration_s=(n_frames + 30) / 25.0, seed=0)
     sim = make_scenario(

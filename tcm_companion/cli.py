@@ -80,7 +80,7 @@ def _scenarios(args: argparse.Namespace) -> list[Any]:
 
     out: list[Any] = [load_scenario(p) for p in args.scenarios]
     if args.sim:
-        from .sim.scenarios import make_scenario
+        from .sim import make_scenario
 
         camera = None
         for name in args.sim:
@@ -187,7 +187,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The default job: the paper's three flights, simulated, evaluated."""
-    from .sim.scenarios import make_scenario
+    from .sim import make_scenario
 
     config = _config(args.config)
     print("Simulating the paper's flights TS, T45, T90 (360x220 panorama) and evaluating TCM,")
@@ -220,8 +220,8 @@ def _camera_arg(args: argparse.Namespace) -> Any:
 
 
 def cmd_sim_export(args: argparse.Namespace) -> int:
+    from .sim import make_scenario
     from .sim.export import export_scenario
-    from .sim.scenarios import make_scenario
 
     camera = _camera_arg(args)
     sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)

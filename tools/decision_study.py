@@ -68,7 +68,7 @@ def record(
     if name.startswith("EX-"):
         sc = load_scenario(EXAMPLES / name)
     else:
-        from tcm_companion.sim.scenarios import make_scenario
+        from tcm_companion.sim import make_scenario
 
         sc = make_scenario(name, duration_s=duration, seed=0)
     cfg = AppConfig()

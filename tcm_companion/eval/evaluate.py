@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..config import AppConfig
-from ..core.classify import METHODS, ClassifierConfig, Method
+from ..core.classify import METHODS, ClassifierConfig, Method, fused_score
 from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult, Pipeline
 from ..io.scenario import Truth
@@ -60,7 +60,7 @@ class ObjectFrame:
             return self.omega_rad
         if method == "bsm":
             return self.bsm_score
-        return max(self.disparity / cls.tcm_threshold, self.omega_rad / cls.ecm_threshold_rad)
+        return fused_score(self.disparity, self.omega_rad, cls)
 
 
 @dataclass

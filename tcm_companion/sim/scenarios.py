@@ -28,16 +28,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.camera import CameraModel, Equirectangular
+from ..core.camera import Equirectangular
 from ..core.frames import FloatArray
 from .world import Ball, SineTerm, Trajectory, track_axes, vec3
-
-if TYPE_CHECKING:
-    from .export import SimulatedScenario
 
 SCENARIO_NAMES: tuple[str, ...] = (
     "TS",
@@ -312,16 +308,3 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
 def describe_scenario(name: str) -> str:
     """One line saying what scenario ``name`` shows."""
     return flight_plan(name).description
-
-
-def make_scenario(
-    name: str,
-    camera: CameraModel | None = None,
-    duration_s: float | None = None,
-    seed: int = 0,
-    noise: float = 1.0,
-) -> SimulatedScenario:
-    """:func:`tcm_companion.sim.export.make_scenario`, also importable from here."""
-    from .export import make_scenario as _make_scenario
-
-    return _make_scenario(name, camera=camera, duration_s=duration_s, seed=seed, noise=noise)

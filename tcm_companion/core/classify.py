@@ -54,6 +54,9 @@ class ClassifierConfig:
     # reporting "no translation" (method.md's hover extension).
     hover_test: bool = True
     hover_max_baseline_m: float = 0.05
+    # Largest 1-σ uncertainty of δ that the translation direction's own uncertainty may
+    # cause (see classify_pair); beyond it the pair is "translation too uncertain".
+    max_disparity_sigma: float = 0.03
 
     @property
     def intervals(self) -> tuple[int, ...]:
@@ -127,8 +130,15 @@ def classify_pair(
     config: ClassifierConfig,
     interval_frames: int,
     bsm_score: float = math.nan,
+    t_sigma_rad: float = 0.0,
 ) -> Classification:
-    """Decide from one pair of observations and the translation between them."""
+    """Decide from one pair of observations and the translation between them.
+
+    ``t_sigma_rad`` is the 1-σ uncertainty of ``t_hat_ned``. An in-plane error η of the
+    direction moves ``ln R_geo`` by ``η sin(θ1 - θ0) / (sin θ0 sin θ1)`` (method.md), so
+    a poor direction matters little when the object's bearing barely changed relative to
+    it; the pair is refused only when the resulting uncertainty of δ is too large.
+    """
     geo = triangle_geometry(t_hat_ned, b0_ned, b1_ned, alpha0_rad, alpha1_rad)
     th0, th1 = float(geo.theta0_rad), float(geo.theta1_rad)
     measured = Classification(
@@ -146,6 +156,11 @@ def classify_pair(
     lo, hi = config.min_theta_rad, math.pi - config.min_theta_rad
     if config.method != "bsm" and not (lo <= th0 <= hi and lo <= th1 <= hi):
         return replace(measured, reason="head-on")
+    if config.method in ("tcm", "fused") and t_sigma_rad > 0:
+        sigma_delta = abs(float(geo.r_geo)) * t_sigma_rad * abs(math.sin(th1 - th0))
+        sigma_delta /= math.sin(th0) * math.sin(th1)
+        if not sigma_delta <= config.max_disparity_sigma:
+            return replace(measured, reason="translation too uncertain")
     score = measured.score(config.method, config)
     if not math.isfinite(score):
         return replace(measured, reason="degenerate geometry")

@@ -120,7 +120,9 @@ class EgomotionConfig:
     refine_iterations: int = 3
     max_refine_iterations: int = 8
     step_tolerance_rad: float = 1e-3
-    max_sigma_rad: float = math.radians(4.0)
+    # A loose sanity bound: whether a direction is good enough depends on the object's
+    # geometry, which the classifier judges (ClassifierConfig.max_disparity_sigma).
+    max_sigma_rad: float = math.radians(15.0)
     position_sigma_m: float = 0.015
     fuse_gate: float = 3.0
 

@@ -416,6 +416,7 @@ class Pipeline:
             cls,
             interval,
             bsm_score,
+            t_sigma_rad=est.sigma_rad if math.isfinite(est.sigma_rad) else 0.0,
         )
 
     def _bsm_score(self, ref: Observation) -> float:

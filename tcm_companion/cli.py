@@ -332,6 +332,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from .io.allocator import tune_allocator
+
+    tune_allocator()
     try:
         return int(args.func(args))
     except ConfigError as exc:

@@ -22,12 +22,19 @@ def _num(x: float, fmt: str = "6.3f") -> str:
 
 
 def per_scenario_table(evals: Sequence[ScenarioEval], cls: ClassifierConfig) -> str:
-    """One row per scenario and resolution: TCM accuracy, coverage, disparity stats."""
+    """One row per scenario and resolution: accuracy of each method at its configured
+    threshold, TCM coverage and disparity, measurement errors against truth."""
     lines = [
-        "scenario      resolution  frames  TCM acc  coverage  mean δ ± sd     bearing err  radius err  false tracks",
+        "scenario      resolution  frames  TCM acc  ECM acc  BSM acc  fused    coverage  "
+        "mean δ ± sd     bearing err  radius err  false tracks",
     ]
     for ev in evals:
         summ = {s.method: s for s in summarize(ev.records, cls)}
+
+        def acc(method: str, summ: dict[str, MethodSummary] = summ) -> str:
+            m = summ.get(method)
+            return _pct(m.accuracy if m else math.nan)
+
         tcm = summ.get("tcm")
         after = [r for r in ev.records if r.frame >= cls.frame_interval and r.state != "unknown"]
         d = np.array([r.disparity for r in after], dtype=np.float64)
@@ -36,7 +43,8 @@ def per_scenario_table(evals: Sequence[ScenarioEval], cls: ClassifierConfig) -> 
         n_frames = len({r.frame for r in ev.records})
         lines.append(
             f"{ev.name:<13} {ev.resolution[0]:>4}x{ev.resolution[1]:<5} {n_frames:>7}  "
-            f"{_pct(tcm.accuracy if tcm else math.nan)}  {_pct(tcm.coverage if tcm else math.nan)}   "
+            f"{acc('tcm')}   {acc('ecm')}   {acc('bsm')}   {acc('fused')}   "
+            f"{_pct(tcm.coverage if tcm else math.nan)}   "
             f"{_num(float(np.mean(d)) if len(d) else math.nan, '5.3f')} ± "
             f"{_num(float(np.std(d)) if len(d) else math.nan, '5.3f')}   "
             f"{_num(math.degrees(float(np.median(berr))) if len(berr) else math.nan, '6.2f')}°     "

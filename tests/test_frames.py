@@ -78,3 +78,12 @@ def test_angle_between_is_stable_near_zero() -> None:
     a = np.array([1.0, 0.0, 0.0])
     b = np.array([1.0, 1e-10, 0.0])
     assert float(angle_between(a, b)) == pytest.approx(1e-10, rel=1e-6)
+
+
+def test_cross3_matches_numpy_with_broadcasting() -> None:
+    from tcm_companion.core.frames import cross3
+
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(5, 1, 3)), rng.normal(size=(4, 3))
+    np.testing.assert_allclose(cross3(a, b), np.cross(a, b), atol=1e-15)
+    np.testing.assert_allclose(cross3(a[0, 0], b[0]), np.cross(a[0, 0], b[0]), atol=1e-15)

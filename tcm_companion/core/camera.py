@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .frames import R_CAM_FROM_CV, R_CV_FROM_CAM, FloatArray, mount_rotation, normalize
+from .frames import R_CAM_FROM_CV, R_CV_FROM_CAM, FloatArray, cross3, mount_rotation, normalize
 
 _NEWTON_ITERATIONS = 30
 
@@ -112,7 +112,7 @@ class CameraModel(ABC):
 
 def _triangle_solid_angle(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
     """Solid angle of spherical triangles with unit-vector corners (Van Oosterom–Strackee)."""
-    num = np.abs(np.sum(a * np.cross(b, c), axis=-1))
+    num = np.abs(np.sum(a * cross3(b, c), axis=-1))
     den = 1.0 + np.sum(a * b, axis=-1) + np.sum(b * c, axis=-1) + np.sum(c * a, axis=-1)
     return 2.0 * np.arctan2(num, den)
 

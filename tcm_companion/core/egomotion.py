@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .frames import FloatArray
+from .frames import FloatArray, cross3
 
 _NAN3 = np.full(3, np.nan)
 
@@ -133,17 +133,6 @@ def _unit(v: FloatArray) -> FloatArray:
         return np.asarray(v * (1.0 / np.sqrt(np.einsum("ij,ij->i", v, v)))[:, None])
 
 
-def _cross_rows(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Row-wise cross product of (N, 3) arrays (``np.cross`` costs ~3× more here)."""
-    out = np.empty_like(a)
-    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
-    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
-    out[:, 0] = a1 * b2 - a2 * b1
-    out[:, 1] = a2 * b0 - a0 * b2
-    out[:, 2] = a0 * b1 - a1 * b0
-    return out
-
-
 def _tangent_basis(t: FloatArray) -> FloatArray:
     """(3, 2): two orthonormal vectors across unit ``t`` (scalar code: np.cross on one
     vector costs tens of microseconds)."""
@@ -183,7 +172,7 @@ def translation_from_bearings(
     n = len(b0)
     if n < max(cfg.min_inliers, 2):
         return TranslationEstimate.invalid("vision", n)
-    m = _cross_rows(b0, b1)
+    m = cross3(b0, b1)
     dot = np.einsum("ij,ij->i", b0, b1)
     sin_par = np.sqrt(np.einsum("ij,ij->i", m, m))
 
@@ -473,7 +462,7 @@ def _ransac(
     h = cfg.n_hypotheses
     ij = strong[rng.integers(0, strong.size, 2 * h)]
     i, j = ij[:h], ij[h:]
-    cand = _cross_rows(m[i], m[j])
+    cand = cross3(m[i], m[j])
     norm = np.sqrt(np.einsum("ij,ij->i", cand, cand))
     # Nearly parallel planes give an ill-conditioned intersection.
     good = norm > 0.05 * sin_par[i] * sin_par[j]
@@ -598,7 +587,7 @@ def fuse(
         return vision
     tv, ta = vision.t_hat_ned, autopilot.t_hat_ned
     sv, sa = max(vision.sigma_rad, 1e-9), max(autopilot.sigma_rad, 1e-9)
-    angle = math.atan2(float(np.linalg.norm(np.cross(tv, ta))), float(tv @ ta))
+    angle = math.atan2(float(np.linalg.norm(cross3(tv, ta))), float(tv @ ta))
     if angle > cfg.fuse_gate * math.hypot(sv, sa):
         return vision if sv < sa else autopilot
     wv, wa = 1.0 / sv**2, 1.0 / sa**2

@@ -161,11 +161,24 @@ def bearing_from_azel(az_rad: FloatArray, el_rad: FloatArray) -> FloatArray:
     return np.stack([ce * np.cos(az), ce * np.sin(az), -np.sin(el)], axis=-1)
 
 
+def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Cross product over the last axis (length 3), broadcasting like ``np.cross``.
+
+    Written out because ``np.cross`` spends tens of microseconds in axis bookkeeping,
+    which dominates for the single vectors and small arrays of the per-frame path.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def angle_between(a: FloatArray, b: FloatArray) -> FloatArray:
     """Angle (radians) between vectors along the last axis, stable near 0 and π."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    cross = np.linalg.norm(cross3(a, b), axis=-1)
     dot = np.sum(a * b, axis=-1)
     return np.arctan2(cross, dot)
 
@@ -180,6 +193,6 @@ def rotate_by_vector(v: FloatArray, rotvec: FloatArray) -> FloatArray:
     k = w / theta
     return np.asarray(
         v * np.cos(theta)
-        + np.cross(k, v) * np.sin(theta)
+        + cross3(k, v) * np.sin(theta)
         + np.outer(v @ k, k).reshape(v.shape) * (1 - np.cos(theta))
     )

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import FloatArray, angle_between
+from .frames import FloatArray, angle_between, cross3
 
 
 @dataclass(frozen=True)
@@ -64,8 +64,8 @@ def tcm_disparity(
 
 def ecm_omega_rad(t_hat_ned: FloatArray, b0_ned: FloatArray, b1_ned: FloatArray) -> FloatArray:
     """ECM angle between epipolar-plane normals, ``arccos(|n0·n1| / (|n0||n1|))`` in [0, π/2]."""
-    n0 = np.cross(t_hat_ned, b0_ned)
-    n1 = np.cross(t_hat_ned, b1_ned)
+    n0 = cross3(t_hat_ned, b0_ned)
+    n1 = cross3(t_hat_ned, b1_ned)
     ang = angle_between(n0, n1)
     # |n0·n1|: a plane normal has no sign, so Ω folds into [0, π/2].
     return np.minimum(ang, np.pi - ang)

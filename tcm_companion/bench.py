@@ -75,6 +75,9 @@ def run_bench(
     ]
     for res in resolutions:
         sim, frames = _frames(res, n_frames)
+        # One untimed pass first: the first run in a process pays one-off costs (heap
+        # growth, OpenCV and numpy internals) that would otherwise land on one method.
+        _time_method(config, sim, frames[:60])
         medians = {}
         for method in ("tcm", "ecm", "fused", "bsm"):
             cfg = with_method(config, method)  # type: ignore[arg-type]

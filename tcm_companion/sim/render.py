@@ -96,6 +96,11 @@ def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return np.take(a, idx, axis=-1)
 
 
+def _take_all(idx: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_take` of several arrays at the same indices."""
+    return tuple(_take(a, idx) for a in arrays)
+
+
 def _put(dst: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
     for c in range(dst.shape[0]):
         dst[c, idx] = values[c]
@@ -704,22 +709,10 @@ class Renderer:
         sel = np.nonzero(ok)[0]
         if sel.size == 0:
             return
-        pix, k, b, alpha, th = (
-            _take(pix, sel),
-            _take(k, sel),
-            _take(b, sel),
-            _take(alpha, sel),
-            _take(th, sel),
-        )
+        pix, k, b, alpha, th = _take_all(sel, pix, k, b, alpha, th)
         key = np.where(alpha >= 0.5, th, 1e9 - alpha)  # solid: nearest; else: most covering
         win = self._resolve(pix, key)
-        pix, k, b, alpha, th = (
-            _take(pix, win),
-            _take(k, win),
-            _take(b, win),
-            _take(alpha, win),
-            _take(th, win),
-        )
+        pix, k, b, alpha, th = _take_all(win, pix, k, b, alpha, th)
         hit = fr.origin[:, None] + th * b
         normal = (hit - _take(self._sph_centre.T, k)) / _take(self._sph_radius, k)
         albedo = _take(self._sph_albedo, k)
@@ -773,21 +766,9 @@ class Renderer:
         sel = np.nonzero(ok)[0]
         if sel.size == 0:
             return
-        pix, k, b, alpha, th = (
-            _take(pix, sel),
-            _take(k, sel),
-            _take(b, sel),
-            _take(alpha, sel),
-            _take(th, sel),
-        )
+        pix, k, b, alpha, th = _take_all(sel, pix, k, b, alpha, th)
         win = self._resolve(pix, np.where(alpha >= 0.5, th, 1e9 - alpha))
-        pix, k, b, alpha, th = (
-            _take(pix, win),
-            _take(k, win),
-            _take(b, win),
-            _take(alpha, win),
-            _take(th, win),
-        )
+        pix, k, b, alpha, th = _take_all(win, pix, k, b, alpha, th)
         base = _take(self._cyl_base, k)
         hn = o[0] + th * b[0] - base[0]
         he = o[1] + th * b[1] - base[1]

@@ -1,8 +1,8 @@
 """Generate the Python module of our dialect from ``tcm.xml`` with pymavlink's mavgen.
 
-``tcm.xml`` includes ``common.xml``; mavgen resolves includes relative to the XML's
-folder, so the XML is generated from a temporary folder next to the copies of
-common/standard/minimal that pymavlink ships. The generated module is committed
+``tcm.xml`` includes ``common.xml`` and ``ardupilotmega.xml``; mavgen resolves includes
+relative to the XML's folder, so the XML is generated from a temporary folder next to
+copies of the dialect XMLs that pymavlink ships. The generated module is committed
 (``tcm_dialect.py``) so that nothing runs the generator at import time; a test checks it
 against the XML.
 
@@ -28,8 +28,8 @@ def generate(output: Path = MODULE, xml: Path = XML) -> Path:
     """Run mavgen (Python 3, MAVLink 2) on ``xml``; write the module to ``output``."""
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        for name in ("common.xml", "standard.xml", "minimal.xml"):
-            shutil.copy(_SHIPPED / name, folder / name)
+        for shipped in _SHIPPED.glob("*.xml"):
+            shutil.copy(shipped, folder / shipped.name)
         shutil.copy(xml, folder / "tcm.xml")
         opts = mavgen.Opts(
             str(folder / "tcm"), wire_protocol="2.0", language="Python3", validate=True

@@ -57,6 +57,9 @@ class ClassifierConfig:
     # Largest 1-σ uncertainty of δ that the translation direction's own uncertainty may
     # cause (see classify_pair); beyond it the pair is "translation too uncertain".
     max_disparity_sigma: float = 0.03
+    # A stationary object's range needs this much parallax (the bearing change relative
+    # to the translation) to be worth reporting: its error is bearing noise / parallax.
+    min_range_parallax_rad: float = math.radians(2.0)
 
     @property
     def intervals(self) -> tuple[int, ...]:
@@ -76,6 +79,9 @@ class Classification:
     theta0_rad: float = math.nan
     theta1_rad: float = math.nan
     interval_frames: int = 0
+    # Range to the object at the later frame (m), from the sine rule with the autopilot's
+    # metric translation: valid for a stationary object only, NaN otherwise.
+    range_m: float = math.nan
 
     def score(self, method: Method, config: ClassifierConfig) -> float:
         """The method's score normalised by its threshold (> 1 means moving)."""

@@ -45,7 +45,7 @@ from .egomotion import (
 )
 from .flow import FlowConfig, FlowTracker
 from .frames import FloatArray, azel_from_bearing, rotate_by_vector
-from .tcm import triangle_geometry
+from .tcm import stationary_range_m, triangle_geometry
 from .telemetry import TelemetryBuffer, TelemetrySample
 from .tracking import Observation, Track, Tracker, TrackerConfig
 from .ttc import TTCConfig, estimate_ttc
@@ -407,7 +407,7 @@ class Pipeline:
         if self.config.egomotion_rotation_correction and np.any(est.rotation_ned_rad):
             # Vision measured the attitude error between the two frames: undo it.
             b1 = rotate_by_vector(b1, est.rotation_ned_rad)
-        return classify_pair(
+        result = classify_pair(
             est.t_hat_ned,
             ref.bearing_ned,
             b1,
@@ -418,6 +418,15 @@ class Pipeline:
             bsm_score,
             t_sigma_rad=est.sigma_rad if math.isfinite(est.sigma_rad) else 0.0,
         )
+        parallax = abs(result.theta1_rad - result.theta0_rad)
+        if (
+            result.state == "stationary"
+            and math.isfinite(est.magnitude_m)
+            and parallax >= cls.min_range_parallax_rad
+        ):
+            _, d1 = stationary_range_m(est.t_hat_ned * est.magnitude_m, ref.bearing_ned, b1)
+            result = replace(result, range_m=float(d1) if float(d1) > 0 else math.nan)
+        return result
 
     def _bsm_score(self, ref: Observation) -> float:
         assert self._bsm is not None

@@ -1,0 +1,116 @@
+"""Our tunables as MAVLink parameters: the table, range checks, and the config mapping.
+
+Every parameter travels as ``MAV_PARAM_TYPE_REAL32`` (integers are whole-valued
+floats), so no ground station has to guess between the bytewise and C-cast encodings.
+Names are at most 16 characters, prefixed ``TCM_``. Values are range-checked; a
+``PARAM_SET`` out of range is refused (the current value is sent back, as the protocol
+asks) and counted. Persistence is the edge's job: the endpoint reports changes, and
+:func:`config_with_params` turns the values into the pipeline's configuration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from ..core.pipeline import PipelineConfig
+
+_SOURCES = ("vision", "autopilot", "fused")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    default: float
+    minimum: float
+    maximum: float
+    integer: bool
+    description: str
+
+
+PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("TCM_THRESH", 0.09, 0.0, 2.0, False, "TCM disparity threshold (moving above)"),
+    ParamSpec("TCM_INTERVAL", 25, 2, 40, True, "frames between compared observations"),
+    ParamSpec("TCM_HOLD", 12, 0, 50, True, "frames a disparity counts after it was measured"),
+    ParamSpec("TCM_HUE_MIN", -15.0, -60.0, 0.0, False, "detector seed hue lower bound, deg"),
+    ParamSpec("TCM_HUE_MAX", 12.0, 0.0, 60.0, False, "detector seed hue upper bound, deg"),
+    ParamSpec("TCM_SAT_MIN", 0.70, 0.0, 1.0, False, "detector seed minimum saturation"),
+    ParamSpec("TCM_EGO_SRC", 2, 0, 2, True, "egomotion source: 0 vision, 1 autopilot, 2 fused"),
+    ParamSpec("TCM_TTC_ALARM", 3.0, 0.0, 60.0, False, "time to contact alarm, s (0: off)"),
+    ParamSpec("TCM_OUT_STATUS", 1, 0, 1, True, "send TCM_OBJECT_STATUS"),
+    ParamSpec("TCM_OUT_HEALTH", 1, 0, 1, True, "send TCM_PIPELINE_HEALTH"),
+    ParamSpec("TCM_OUT_OBST", 0, 0, 1, True, "send OBSTACLE_DISTANCE (proximity)"),
+    ParamSpec("TCM_OUT_OBST3D", 0, 0, 1, True, "send OBSTACLE_DISTANCE_3D (ArduPilot)"),
+    ParamSpec("TCM_OUT_ADSB", 0, 0, 1, True, "send ADSB_VEHICLE for moving objects"),
+    ParamSpec("TCM_OBJ_RADIUS", 0.375, 0.0, 50.0, False, "object radius, m (ranges of movers)"),
+)
+BY_NAME: dict[str, ParamSpec] = {p.name: p for p in PARAMS}
+assert all(len(p.name) <= 16 for p in PARAMS)
+
+
+class ParamTable:
+    """Current values in table order; ``set`` range-checks and reports refusals."""
+
+    def __init__(self, initial: Mapping[str, float] | None = None) -> None:
+        self.values: dict[str, float] = {p.name: float(p.default) for p in PARAMS}
+        self.ignored_initial: list[str] = []
+        for name, value in (initial or {}).items():
+            if self.set(name, value) is None:
+                self.ignored_initial.append(name)
+
+    def __len__(self) -> int:
+        return len(PARAMS)
+
+    def index(self, name: str) -> int:
+        return [p.name for p in PARAMS].index(name)
+
+    def by_index(self, i: int) -> ParamSpec | None:
+        return PARAMS[i] if 0 <= i < len(PARAMS) else None
+
+    def set(self, name: str, value: float) -> float | None:
+        """Store ``value`` if valid; returns the stored value, or None if refused."""
+        spec = BY_NAME.get(name)
+        if spec is None or not isinstance(value, int | float) or not math.isfinite(value):
+            return None
+        if not spec.minimum <= value <= spec.maximum:
+            return None
+        stored = float(round(value)) if spec.integer else float(value)
+        self.values[name] = stored
+        return stored
+
+
+def config_with_params(config: PipelineConfig, values: Mapping[str, float]) -> PipelineConfig:
+    """The pipeline configuration with the parameter values applied."""
+    v = {**{p.name: p.default for p in PARAMS}, **values}
+    cls = dataclasses.replace(
+        config.classifier,
+        tcm_threshold=float(v["TCM_THRESH"]),
+        frame_interval=int(v["TCM_INTERVAL"]),
+        hold_frames=int(v["TCM_HOLD"]),
+    )
+    det = dataclasses.replace(
+        config.detection,
+        seed_hue_deg=(float(v["TCM_HUE_MIN"]), float(v["TCM_HUE_MAX"])),
+        seed_min_saturation=float(v["TCM_SAT_MIN"]),
+    )
+    return dataclasses.replace(
+        config,
+        classifier=cls,
+        detection=det,
+        egomotion_source=_SOURCES[int(v["TCM_EGO_SRC"])],  # type: ignore[arg-type]
+    )
+
+
+def params_from_config(config: PipelineConfig) -> dict[str, float]:
+    """Parameter values that describe ``config`` (used as defaults at start-up)."""
+    return {
+        "TCM_THRESH": config.classifier.tcm_threshold,
+        "TCM_INTERVAL": float(config.classifier.frame_interval),
+        "TCM_HOLD": float(config.classifier.hold_frames),
+        "TCM_HUE_MIN": config.detection.seed_hue_deg[0],
+        "TCM_HUE_MAX": config.detection.seed_hue_deg[1],
+        "TCM_SAT_MIN": config.detection.seed_min_saturation,
+        "TCM_EGO_SRC": float(_SOURCES.index(config.egomotion_source)),
+    }

@@ -39,6 +39,30 @@ class SigningConfig:
             raise ValueError("MAVLink signing key must be 32 bytes")
 
 
+def _header_verdict(buf: bytearray, pos: int) -> str:
+    """Why no frame can start at ``pos`` ("" if one can): known id, possible length.
+
+    Unknown ids are dropped after decoding anyway, so refusing them here loses nothing,
+    and it keeps a stray magic byte from stalling the stream while its made-up length
+    arrives.
+    """
+    if buf[pos] == MAGIC_V1:
+        length, msg_id = buf[pos + 1], buf[pos + 5]
+    else:
+        if buf[pos + 2] & ~_SIGNED:
+            return "bad header"  # incompat flags other than "signed" are not defined
+        length = buf[pos + 1]
+        msg_id = buf[pos + 7] | (buf[pos + 8] << 8) | (buf[pos + 9] << 16)
+    cls = dialect.mavlink_map.get(msg_id)
+    if cls is None:
+        return "unknown message id"
+    full = cls.unpacker.size
+    # MAVLink 2 trims trailing zeros (at least 1 byte stays); MAVLink 1 sends the base
+    # message exactly (extensions are v2 only).
+    ok = 1 <= length <= full if buf[pos] == MAGIC_V2 else length <= full
+    return "" if ok else "bad header"
+
+
 class MavlinkCodec:
     """One MAVLink endpoint's framing: ``feed(bytes) -> messages``, ``encode(msg) -> bytes``."""
 
@@ -114,8 +138,16 @@ class MavlinkCodec:
                 pos += 1
                 self.stats["garbage bytes"] += 1
                 continue
-            if n - pos < 3:
+            header = 6 if magic == MAGIC_V1 else 10
+            if n - pos < header:
                 break
+            verdict = _header_verdict(buf, pos)
+            if verdict:
+                # A stray magic byte, or another dialect's frame: do not wait for a
+                # "frame" of its made-up length; rescan from the next byte.
+                pos += 1
+                self.stats[verdict] += 1
+                continue
             if magic == MAGIC_V1:
                 flen = 6 + buf[pos + 1] + 2
             else:
@@ -149,11 +181,20 @@ class MavlinkCodec:
                 return None, False
             self.stats["unsigned rejected"] += 1
             return None, True
+        stream = (frame[-13], frame[5], frame[6]) if signed else None
+        seen = self.mav.signing.stream_timestamps.get(stream) if stream else None
         try:
             msg = self.mav.decode(frame)
         except dialect.MAVError as exc:
             text = str(exc)
             if "signature" in text.lower():
+                # pymavlink records a stream's timestamp before checking the signature, so
+                # a forged frame with a future timestamp would lock the real sender out.
+                if stream is not None:
+                    if seen is None:
+                        self.mav.signing.stream_timestamps.pop(stream, None)
+                    else:
+                        self.mav.signing.stream_timestamps[stream] = seen
                 self.stats["bad signature"] += 1
                 return None, True
             self.stats["bad CRC" if "CRC" in text else "undecodable"] += 1

@@ -57,6 +57,10 @@ class TimesyncFilter:
     def synced(self) -> bool:
         return math.isfinite(self._offset_us)
 
+    @property
+    def n_samples(self) -> int:
+        return len(self._samples)
+
     def age_us(self, now_us: int) -> float:
         return now_us - self._samples[-1].at_us if self._samples else math.inf
 

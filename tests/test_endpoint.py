@@ -1,0 +1,345 @@
+"""The companion endpoint against a scripted autopilot, in memory, time driven explicitly."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tcm_companion.core.classify import Classification
+from tcm_companion.core.frames import bearing_from_azel
+from tcm_companion.core.pipeline import FrameResult, ObjectResult
+from tcm_companion.mavlink import tcm_dialect as d
+from tcm_companion.mavlink.codec import MavlinkCodec, SigningConfig
+from tcm_companion.mavlink.endpoint import (
+    AutopilotFound,
+    AutopilotLost,
+    AutopilotRebooted,
+    CompanionEndpoint,
+    EndpointConfig,
+    ParamChanged,
+    TelemetryReceived,
+)
+
+T0 = 1_000_000_000  # companion clock at start, µs
+BOOT0_MS = 250_000  # autopilot boot time at start
+
+
+class Autopilot:
+    """A scripted ArduPilot-like peer: a codec plus the few answers the tests need."""
+
+    def __init__(self, sysid: int = 1, key: bytes | None = None) -> None:
+        self.codec = MavlinkCodec(sysid, 1, SigningConfig(key) if key else None)
+        self.inbox: list = []
+        self.ack_commands = True
+
+    def hb(self) -> bytes:
+        return self.codec.encode(
+            d.MAVLink_heartbeat_message(
+                d.MAV_TYPE_QUADROTOR, d.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3
+            )
+        )
+
+    def attitude(self, boot_ms: int, roll: float = 0.0) -> bytes:
+        return self.codec.encode(d.MAVLink_attitude_message(boot_ms, roll, 0.0, 0.1, 0, 0, 0))
+
+    def receive(self, data: bytes) -> list:
+        msgs = self.codec.feed(data)
+        self.inbox += msgs
+        return msgs
+
+    def of(self, kind: str) -> list:
+        return [m for m in self.inbox if m.get_type() == kind]
+
+
+def connected(now: int = T0, **cfg) -> tuple[CompanionEndpoint, Autopilot]:  # type: ignore[no-untyped-def]
+    ep = CompanionEndpoint(EndpointConfig(**cfg), now_us=now)
+    ap = Autopilot(sysid=7)
+    events = ep.receive_data(ap.hb(), now)
+    assert events == [AutopilotFound(7, 1, d.MAV_AUTOPILOT_ARDUPILOTMEGA, d.MAV_TYPE_QUADROTOR)]
+    return ep, ap
+
+
+def test_heartbeat_identity_and_learned_system_id() -> None:
+    ep = CompanionEndpoint(now_us=T0)
+    ap = Autopilot(sysid=7)
+    ep.poll(T0)
+    (hb,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "HEARTBEAT"]
+    assert hb.get_srcSystem() == 1 and hb.get_srcComponent() == 191
+    assert hb.type == d.MAV_TYPE_ONBOARD_CONTROLLER and hb.autopilot == d.MAV_AUTOPILOT_INVALID
+    ep.receive_data(ap.hb(), T0 + 1000)
+    for k in range(1, 4):
+        ep.poll(T0 + k * 1_000_000)
+    hbs = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "HEARTBEAT"]
+    assert len(hbs) == 3 and all(m.get_srcSystem() == 7 for m in hbs)
+
+
+def test_gcs_heartbeat_is_not_taken_for_an_autopilot() -> None:
+    ep = CompanionEndpoint(now_us=T0)
+    gcs = MavlinkCodec(255, 190)
+    ev = ep.receive_data(gcs.encode(d.MAVLink_heartbeat_message(d.MAV_TYPE_GCS, 8, 0, 0, 4, 3)), T0)
+    assert ev == [] and ep.autopilot is None
+
+
+def test_message_intervals_one_at_a_time_retried_and_acked() -> None:
+    ep, ap = connected()
+    ep.poll(T0)
+    cmds = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "COMMAND_LONG"]
+    assert len(cmds) == 1
+    assert cmds[0].command == d.MAV_CMD_SET_MESSAGE_INTERVAL
+    assert cmds[0].param1 == d.MAVLINK_MSG_ID_ATTITUDE and cmds[0].param2 == pytest.approx(20_000)
+    assert (cmds[0].target_system, cmds[0].target_component) == (7, 1)
+    ep.poll(T0 + 1_100_000)  # no ACK: sent again
+    again = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "COMMAND_LONG"]
+    assert len(again) == 1 and again[0].param1 == d.MAVLINK_MSG_ID_ATTITUDE
+    assert ep.stats["request retries"] == 1
+    ack = ap.codec.encode(
+        d.MAVLink_command_ack_message(d.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 0, 0, 7, 191)
+    )
+    ep.receive_data(ack, T0 + 1_150_000)
+    ep.poll(T0 + 1_150_001)
+    nxt = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "COMMAND_LONG"]
+    assert nxt[0].param1 == d.MAVLINK_MSG_ID_LOCAL_POSITION_NED and nxt[0].param2 == pytest.approx(
+        100_000
+    )
+
+
+def test_quaternion_refused_falls_back_to_euler() -> None:
+    ep, ap = connected(attitude_message="ATTITUDE_QUATERNION")
+    ep.poll(T0)
+    (cmd,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "COMMAND_LONG"]
+    assert cmd.param1 == d.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
+    nak = d.MAVLink_command_ack_message(
+        d.MAV_CMD_SET_MESSAGE_INTERVAL, d.MAV_RESULT_DENIED, 0, 0, 7, 191
+    )
+    ep.receive_data(ap.codec.encode(nak), T0 + 10_000)
+    ep.poll(T0 + 10_001)
+    (cmd,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "COMMAND_LONG"]
+    assert cmd.param1 == d.MAVLINK_MSG_ID_ATTITUDE
+
+
+def test_telemetry_events_and_filtering() -> None:
+    ep, ap = connected()
+    ev = ep.receive_data(ap.attitude(BOOT0_MS, roll=0.2), T0 + 5000)
+    assert len(ev) == 1 and isinstance(ev[0], TelemetryReceived)
+    assert ev[0].sample.time_boot_us == BOOT0_MS * 1000 and ev[0].sample.recv_us == T0 + 5000
+    other = Autopilot(sysid=9)
+    assert ep.receive_data(other.attitude(BOOT0_MS + 20), T0 + 6000) == []
+    assert ep.stats["telemetry from another system"] == 1
+    assert ep.receive_data(ap.attitude(BOOT0_MS + 40, roll=math.nan), T0 + 7000) == []
+    assert ep.stats["bad attitude"] == 1
+
+
+def test_autopilot_reboot_and_loss() -> None:
+    ep, ap = connected()
+    ep.receive_data(ap.attitude(BOOT0_MS), T0)
+    ev = ep.receive_data(ap.attitude(1200), T0 + 20_000)  # boot clock back at 1.2 s
+    assert any(isinstance(e, AutopilotRebooted) for e in ev)
+    assert any(isinstance(e, TelemetryReceived) for e in ev)
+    ev = ep.poll(T0 + 6_000_000)  # no heartbeat for 6 s
+    assert any(isinstance(e, AutopilotLost) for e in ev)
+    ev = ep.receive_data(ap.hb(), T0 + 7_000_000)
+    assert any(isinstance(e, AutopilotFound) for e in ev)
+
+
+def test_timesync_offset_within_a_millisecond_with_jittery_latency() -> None:
+    ep, ap = connected()
+    rng = random.Random(1)
+    now = T0
+    offset_us = T0 - BOOT0_MS * 1000  # companion - autopilot boot
+    for _ in range(60):
+        now += 100_000
+        ep.poll(now)
+        for m in ap.receive(ep.data_to_send()):
+            if m.get_type() == "TIMESYNC" and m.tc1 == 0:
+                up, down = rng.uniform(0, 2000), rng.uniform(0, 2000)  # µs, jittery
+                t_ap_us = m.ts1 / 1000 + up - offset_us
+                reply = ap.codec.encode(d.MAVLink_timesync_message(int(t_ap_us * 1000), m.ts1))
+                ep.receive_data(reply, int(m.ts1 / 1000 + up + down))
+    assert ep.timesync.synced
+    assert abs(ep.timesync.offset_us - offset_us) < 1000
+    # A reboot (offset jump) restarts the filter instead of being averaged in.
+    ep.timesync.add_reply(now, 5_000_000, now + 1000)
+    assert ep.timesync.resets == 1
+
+
+def test_answers_the_autopilots_timesync_request() -> None:
+    ep, ap = connected()
+    ep.receive_data(ap.codec.encode(d.MAVLink_timesync_message(0, 123_456)), T0 + 10)
+    (reply,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "TIMESYNC"]
+    assert reply.ts1 == 123_456 and reply.tc1 == (T0 + 10) * 1000
+
+
+def test_parameter_protocol() -> None:
+    ep, ap = connected()
+    gcs = MavlinkCodec(255, 190)
+    ep.receive_data(gcs.encode(d.MAVLink_param_request_list_message(7, 191)), T0)
+    values = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"]
+    assert len(values) == values[0].param_count >= 10
+    assert {v.param_id for v in values} >= {"TCM_THRESH", "TCM_INTERVAL", "TCM_EGO_SRC"}
+    ev = ep.receive_data(
+        gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_THRESH", 0.12, 9)), T0 + 1
+    )
+    assert ev == [ParamChanged("TCM_THRESH", pytest.approx(0.12))]
+    (echo,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"]
+    assert echo.param_id == "TCM_THRESH" and echo.param_value == pytest.approx(0.12)
+    # Out of range: refused, the current value is sent back, a warning goes out.
+    ev = ep.receive_data(
+        gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_INTERVAL", 400, 9)), T0 + 2
+    )
+    assert ev == [] and ep.stats["parameter refused"] == 1
+    (echo,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"]
+    assert echo.param_value == 25
+    ep.receive_data(
+        gcs.encode(d.MAVLink_param_request_read_message(7, 191, b"TCM_HOLD", -1)), T0 + 3
+    )
+    (read,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"]
+    assert read.param_id == "TCM_HOLD" and read.param_value == 12
+    # Not for us: ignored.
+    ep.receive_data(gcs.encode(d.MAVLink_param_request_list_message(7, 1)), T0 + 4)
+    assert [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"] == []
+
+
+def test_commands_are_acknowledged() -> None:
+    ep, ap = connected()
+    gcs = MavlinkCodec(255, 190)
+    unknown = d.MAVLink_command_long_message(7, 191, d.MAV_CMD_DO_SET_MODE, 0, 1, 0, 0, 0, 0, 0, 0)
+    ep.receive_data(gcs.encode(unknown), T0)
+    (ack,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "COMMAND_ACK"]
+    assert ack.result == d.MAV_RESULT_UNSUPPORTED and (ack.target_system, ack.target_component) == (
+        255,
+        190,
+    )
+    req = d.MAVLink_command_long_message(
+        7, 191, d.MAV_CMD_REQUEST_MESSAGE, 0, d.MAVLINK_MSG_ID_TCM_PIPELINE_HEALTH, 0, 0, 0, 0, 0, 0
+    )
+    ep.receive_data(gcs.encode(req), T0 + 1)
+    ep.poll(T0 + 2)
+    got = ap.receive(ep.data_to_send())
+    assert [m.result for m in got if m.get_type() == "COMMAND_ACK"] == [d.MAV_RESULT_ACCEPTED]
+    assert any(m.get_type() == "TCM_PIPELINE_HEALTH" for m in got)
+
+
+def obj(
+    track: int, state: str, az_deg: float, collision: bool = False, ttc: float = math.nan
+) -> ObjectResult:
+    b = bearing_from_azel(np.radians(az_deg), 0.0)
+    c = Classification(state, "", disparity=0.3 if state == "moving" else 0.01, range_m=4.0)  # type: ignore[arg-type]
+    return ObjectResult(
+        track,
+        True,
+        state,
+        "",
+        b,
+        b,
+        b,
+        math.radians(az_deg),
+        0.0,
+        0.09,
+        (0.0, 0.0),
+        c,
+        ttc,
+        collision,
+        math.nan,  # type: ignore[arg-type]
+    )
+
+
+def frame(objects: list[ObjectResult], t_us: int) -> FrameResult:
+    return FrameResult(0, t_us, tuple(objects), True, None, {})
+
+
+def test_frame_outputs_and_obstacle_distance() -> None:
+    ep, ap = connected()
+    ep.receive_data(ap.attitude(BOOT0_MS), T0)
+    gcs = MavlinkCodec(255, 190)
+    ep.receive_data(gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_OUT_OBST", 1, 9)), T0)
+    ap.receive(ep.data_to_send())
+    ep.send_frame(
+        frame([obj(3, "moving", 30.0), obj(4, "stationary", -90.0)], T0 + 1000), T0 + 2000
+    )
+    st = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "TCM_OBJECT_STATUS"]
+    assert [(m.track_id, m.state) for m in st] == [(3, 2), (4, 1)]
+    assert st[0].azimuth == pytest.approx(math.radians(30.0), abs=1e-6)
+    assert st[0].time_boot_ms == pytest.approx(BOOT0_MS + 1, abs=2)
+    assert math.isnan(st[0].range) is False and st[1].range == pytest.approx(4.0)
+    ep.poll(T0 + 100_000)
+    (od,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "OBSTACLE_DISTANCE"]
+    assert od.frame == d.MAV_FRAME_BODY_FRD and len(od.distances) == 72
+    left = od.distances[(360 - 90) // 5]
+    assert left < od.max_distance and od.distances[10] == od.max_distance + 1
+    ep.poll(T0 + 2_000_000)  # frames stale: no "all clear" is claimed
+    assert [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "OBSTACLE_DISTANCE"] == []
+
+
+def test_collision_alarm_statustext_is_rate_limited() -> None:
+    ep, ap = connected()
+    for k in range(5):
+        ep.send_frame(frame([obj(3, "moving", 0.0, collision=True, ttc=1.5)], T0 + k), T0 + k)
+    for k in range(5):
+        ep.poll(T0 + k * 300_000)
+    texts = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
+    assert len(texts) == 1 and "collision course track 3" in texts[0].text
+    assert ep.stats["statustext suppressed"] == 4
+
+
+def test_signing_rejects_unsigned_and_wrong_key() -> None:
+    key = bytes(range(32))
+    ep = CompanionEndpoint(now_us=T0, signing=SigningConfig(key))
+    good, bad = Autopilot(key=key), Autopilot(key=bytes(32))
+    plain = Autopilot()
+    assert ep.receive_data(plain.hb(), T0) == [] and ep.codec.stats["unsigned rejected"] == 1
+    assert ep.receive_data(bad.codec.encode(_hb(), T0), T0) == []
+    assert ep.codec.stats["bad signature"] == 1
+    ev = ep.receive_data(good.codec.encode(_hb(), T0 + 10), T0 + 10)
+    assert isinstance(ev[0], AutopilotFound)
+    ep.poll(T0 + 20)
+    out = ep.data_to_send()
+    assert good.receive(out) and all(m.get_signed() for m in good.inbox)
+
+
+def _hb():  # type: ignore[no-untyped-def]
+    return d.MAVLink_heartbeat_message(
+        d.MAV_TYPE_QUADROTOR, d.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3
+    )
+
+
+@settings(max_examples=200, deadline=None)
+@given(junk=st.lists(st.binary(max_size=300), max_size=20), seed=st.integers(0, 1000))
+def test_fuzz_receive_path_never_raises_and_keeps_working(junk: list[bytes], seed: int) -> None:
+    ep, ap = connected()
+    rng = random.Random(seed)
+    frames = [ap.attitude(BOOT0_MS + 20 * k) for k in range(5)]
+    for chunk in junk:
+        if rng.random() < 0.3:  # corrupt a real frame into the stream
+            f = bytearray(rng.choice(frames))
+            f[rng.randrange(len(f))] ^= 1 << rng.randrange(8)
+            chunk = bytes(f) + chunk
+        ep.receive_data(chunk, T0 + 1000)
+        ep.poll(T0 + 1000)
+    # After the garbage, clean frames still decode (the buffer resynchronised).
+    ev = ep.receive_data(
+        b"".join(ap.attitude(BOOT0_MS + 10_000 + 20 * k) for k in range(3)), T0 + 2000
+    )
+    assert sum(isinstance(e, TelemetryReceived) for e in ev) >= 2
+
+
+def test_flood_is_bounded() -> None:
+    ep, _ = connected()
+    ep.receive_data(b"\xfd\xff" + b"\x00" * 200_000, T0)
+    assert len(ep.codec._rx) <= ep.codec.max_buffer
+    assert ep.codec.stats["overflow bytes dropped"] > 0
+
+
+def test_forged_frame_cannot_lock_out_the_real_sender() -> None:
+    key = bytes(range(32))
+    ep = CompanionEndpoint(now_us=T0, signing=SigningConfig(key))
+    forger, good = Autopilot(key=bytes(32)), Autopilot(key=key)
+    now = 1_700_000_000_000_000
+    forged = forger.codec.encode(_hb(), now + 3_600_000_000)  # an hour in the future
+    assert ep.receive_data(forged, now) == []
+    ev = ep.receive_data(good.codec.encode(_hb(), now), now)
+    assert ev and isinstance(ev[0], AutopilotFound)

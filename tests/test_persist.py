@@ -1,0 +1,67 @@
+"""Parameters, signing key and timestamp across restarts."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import pytest
+
+from tcm_companion.core.pipeline import PipelineConfig
+from tcm_companion.io.persist import ParamStore, SigningKeyError, TimestampStore, load_signing_key
+from tcm_companion.mavlink.params import ParamTable, config_with_params
+
+
+def test_params_round_trip_and_apply(tmp_path: Path) -> None:
+    store = ParamStore(tmp_path / "params.json")
+    assert store.load() == {}
+    table = ParamTable()
+    assert table.set("TCM_THRESH", 0.12) == pytest.approx(0.12)
+    assert table.set("TCM_INTERVAL", 30.4) == 30.0
+    assert table.set("TCM_INTERVAL", 400) is None and table.set("NOPE", 1) is None
+    store.save(table.values)
+    again = ParamTable(ParamStore(tmp_path / "params.json").load())
+    assert again.values == table.values
+    cfg = config_with_params(PipelineConfig(), again.values)
+    assert (
+        cfg.classifier.tcm_threshold == pytest.approx(0.12) and cfg.classifier.frame_interval == 30
+    )
+
+
+def test_corrupt_param_file_is_set_aside(tmp_path: Path) -> None:
+    path = tmp_path / "params.json"
+    path.write_text("{not json")
+    store = ParamStore(path)
+    assert store.load() == {}
+    assert (tmp_path / "params.json.corrupt").exists() and "using defaults" in store.warnings[0]
+
+
+def test_out_of_range_stored_values_are_ignored(tmp_path: Path) -> None:
+    table = ParamTable({"TCM_THRESH": 99.0, "TCM_HOLD": 3})
+    assert table.values["TCM_THRESH"] == pytest.approx(0.09) and table.values["TCM_HOLD"] == 3
+    assert table.ignored_initial == ["TCM_THRESH"]
+
+
+def test_signing_key_forms_and_permissions(tmp_path: Path) -> None:
+    key = tmp_path / "key"
+    key.write_text("00" * 32 + "\n")
+    key.chmod(0o600)
+    assert load_signing_key(key) == bytes(32)
+    key.write_bytes(bytes(range(32)))
+    assert load_signing_key(key) == bytes(range(32))
+    key.write_text("correct horse battery staple\n")
+    assert load_signing_key(key) == hashlib.sha256(b"correct horse battery staple").digest()
+    key.chmod(0o644)
+    with pytest.raises(
+        SigningKeyError, match=r"accessible to other users \(mode 0644\); run: chmod 600"
+    ):
+        load_signing_key(key)
+    with pytest.raises(SigningKeyError, match="does not exist"):
+        load_signing_key(tmp_path / "missing")
+
+
+def test_timestamp_store(tmp_path: Path) -> None:
+    ts = TimestampStore(tmp_path / "ts")
+    assert ts.load() == 0
+    ts.save(123456789)
+    assert TimestampStore(tmp_path / "ts").load() == 123456789

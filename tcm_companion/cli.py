@@ -1,7 +1,8 @@
 """Command line: ``tcm-companion <command>``.
 
 Commands: ``demo`` (the default job: simulate the paper's flights and print the
-evaluation), ``replay``, ``eval``, ``bench``, ``sim export`` and ``sim list``.
+evaluation), ``replay``, ``eval``, ``bench``, ``mock-autopilot``, ``sim export`` and
+``sim list``.
 """
 
 from __future__ import annotations
@@ -314,6 +315,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resolutions", type=_resolution, nargs="+", metavar="WxH")
     p.add_argument("--frames", type=int, default=200, help="frames timed per resolution and method")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser(
+        "mock-autopilot", help="a MAVLink vehicle (ArduPilot-like) that flies a simulated scenario"
+    )
+    from .sim.mock_autopilot_run import add_arguments as mock_autopilot_arguments
+    from .sim.mock_autopilot_run import run_from_args as run_mock_autopilot
+
+    mock_autopilot_arguments(p)
+    p.set_defaults(func=run_mock_autopilot)
 
     p = sub.add_parser("sim", help="the built-in simulator")
     ssub = p.add_subparsers(dest="sim_command", required=True)

@@ -124,11 +124,6 @@ class MavlinkCodec:
             return out
         self.stats["bytes"] += len(data)
         self._rx.extend(data)
-        if len(self._rx) > self.max_buffer:
-            # A flood or a stuck partial frame: keep the newest bytes only.
-            drop = len(self._rx) - self.max_buffer
-            del self._rx[:drop]
-            self.stats["overflow bytes dropped"] += drop
         buf = self._rx
         pos = 0
         n = len(buf)
@@ -162,6 +157,12 @@ class MavlinkCodec:
             if msg is not None:
                 out.append(msg)
         del buf[:pos]
+        if len(buf) > self.max_buffer:
+            # Parsed everything complete; what is left is a stuck partial "frame" or a
+            # flood of one: keep the newest bytes only.
+            drop = len(buf) - self.max_buffer
+            del buf[:drop]
+            self.stats["overflow bytes dropped"] += drop
         return out
 
     def _decode(self, frame: bytearray) -> tuple[Any | None, bool]:

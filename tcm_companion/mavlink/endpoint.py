@@ -299,11 +299,7 @@ class CompanionEndpoint:
         ap = self.autopilot
         if ap.last_boot_ms >= 0 and boot_ms < ap.last_boot_ms - 1000:
             # The autopilot's boot clock went back: it rebooted and forgot our requests.
-            self.stats["autopilot reboots"] += 1
-            self._events.append(AutopilotRebooted())
-            self.timesync = TimesyncFilter()
-            self.telemetry_clock = ClockSync()
-            self._restart_requests(now_us)
+            self._on_reboot(now_us)
             ap.last_boot_ms = boot_ms
         else:
             ap.last_boot_ms = max(ap.last_boot_ms, boot_ms)
@@ -315,6 +311,16 @@ class CompanionEndpoint:
         if isinstance(sample, PositionSample):
             self.vehicle_pos_ned_m = sample.pos_ned_m
         self._events.append(TelemetryReceived(sample))
+
+    def _on_reboot(self, now_us: int, keep_timesync: bool = False) -> None:
+        self.stats["autopilot reboots"] += 1
+        self._events.append(AutopilotRebooted())
+        if not keep_timesync:
+            self.timesync = TimesyncFilter()
+        self.telemetry_clock = ClockSync()
+        if self.autopilot is not None:
+            self.autopilot.last_boot_ms = -1
+        self._restart_requests(now_us)
 
     def _sample(self, msg: Any, now_us: int) -> TelemetrySample | None:
         kind = msg.get_type()
@@ -442,7 +448,10 @@ class CompanionEndpoint:
         if self.timesync.add_reply(msg.ts1 // 1000, msg.tc1, now_us) is None:
             self.stats["timesync rejected"] += 1
         elif self.timesync.resets != before:
+            # The autopilot's clock jumped: a reboot (it has forgotten our streams). This
+            # is usually the first sign of one, a second before the telemetry shows it.
             self.stats["timesync resets"] += 1
+            self._on_reboot(now_us, keep_timesync=True)
 
     def _service_timesync(self, now_us: int) -> None:
         if now_us < self._next_timesync or not self.autopilot_connected:

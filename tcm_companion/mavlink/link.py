@@ -1,0 +1,113 @@
+"""The asyncio adapter of the companion endpoint: feed bytes in, drain events, re-arm a timer.
+
+Like aioquic's ``asyncio/protocol.py``: the endpoint (:mod:`.endpoint`) holds all the
+protocol logic; this only moves bytes between it and a transport, wakes it at its
+deadlines, and hands its events to a callback. Frame outputs are pushed with
+:meth:`CompanionLink.send_frame` from the same event loop.
+
+The clock is injected (µs; by default ``time.monotonic_ns() // 1000``) and must be the
+clock the frame times are on, because the endpoint maps frame times to the autopilot's
+boot time through TIMESYNC.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+
+from ..core.pipeline import FrameResult
+from ..io.transports import Transport, TransportClosed, TransportError, TransportTimeout
+from .endpoint import CompanionEndpoint, Event
+
+
+def monotonic_us() -> int:
+    return time.monotonic_ns() // 1000
+
+
+class CompanionLink:
+    """Runs one :class:`CompanionEndpoint` over one transport."""
+
+    def __init__(
+        self,
+        transport: Transport,
+        endpoint: CompanionEndpoint,
+        on_event: Callable[[Event], None] | None = None,
+        clock_us: Callable[[], int] = monotonic_us,
+    ) -> None:
+        self.transport = transport
+        self.endpoint = endpoint
+        self.on_event = on_event
+        self.clock_us = clock_us
+        self._wake = asyncio.Event()
+        self._stopping = False
+        self.send_errors = 0
+
+    def now_us(self) -> int:
+        return self.clock_us()
+
+    def send_frame(self, result: FrameResult, camera_id: int = 0) -> None:
+        """Queue one frame's outputs; they go out at once (the writer is woken)."""
+        self.endpoint.send_frame(result, self.now_us(), camera_id)
+        self._wake.set()
+
+    def stop(self) -> None:
+        self._stopping = True
+        self._wake.set()
+
+    def _dispatch(self, events: list[Event]) -> None:
+        if self.on_event is None:
+            return
+        for ev in events:
+            self.on_event(ev)
+
+    async def _flush(self) -> None:
+        data = self.endpoint.data_to_send()
+        if not data:
+            return
+        try:
+            await self.transport.send(data)
+        except (TransportTimeout, TransportClosed):
+            # The link is down or the peer stopped reading: drop rather than block the
+            # pipeline; the endpoint's timers resend what matters (heartbeats, requests).
+            self.send_errors += 1
+
+    async def _reader(self) -> None:
+        while not self._stopping:
+            try:
+                data = await self.transport.recv()
+            except TransportClosed:
+                if self._stopping:
+                    return
+                await asyncio.sleep(0.1)  # a reconnecting transport comes back
+                continue
+            except TransportError:
+                await asyncio.sleep(0.1)
+                continue
+            self._dispatch(self.endpoint.receive_data(data, self.now_us()))
+            self._wake.set()
+
+    async def _timer(self) -> None:
+        while not self._stopping:
+            now = self.now_us()
+            self._dispatch(self.endpoint.poll(now))
+            await self._flush()
+            delay = max(0.0, (self.endpoint.next_deadline_us() - self.now_us()) / 1e6)
+            self._wake.clear()
+            try:
+                await asyncio.wait_for(self._wake.wait(), timeout=min(delay, 1.0))
+            except TimeoutError:
+                pass
+
+    async def run(self) -> None:
+        """Until :meth:`stop`: read, poll, write."""
+        reader = asyncio.create_task(self._reader())
+        try:
+            await self._timer()
+        finally:
+            reader.cancel()
+            try:
+                await reader
+            except asyncio.CancelledError:
+                pass
+            await self._flush()

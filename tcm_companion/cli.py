@@ -203,8 +203,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 # -- bench ---------------------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import run_bench
+    from .bench import run_bench, run_mavlink_bench
 
+    if args.mavlink:
+        print(run_mavlink_bench())
+        return 0
     print(
         run_bench(_config(args.config), args.resolutions or [(360, 220), (900, 550)], args.frames)
     )
@@ -314,6 +317,11 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--resolutions", type=_resolution, nargs="+", metavar="WxH")
     p.add_argument("--frames", type=int, default=200, help="frames timed per resolution and method")
+    p.add_argument(
+        "--mavlink",
+        action="store_true",
+        help="instead: MAVLink encode cost and link latency (pty via socat, UDP)",
+    )
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser(

@@ -669,6 +669,10 @@ class CompanionEndpoint:
             self._next_obstacle = now_us + cfg.obstacle_interval_us
         return self._take_events()
 
+    def send_health_now(self, now_us: int) -> None:
+        """Queue a TCM_PIPELINE_HEALTH at once (as MAV_CMD_REQUEST_MESSAGE does)."""
+        self._send(self._health_message(now_us), now_us)
+
     def _health_message(self, now_us: int) -> Any:
         h = self._health
         flags = h.health_flags

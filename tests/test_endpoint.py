@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import random
 
 import numpy as np
@@ -281,8 +282,9 @@ def test_collision_alarm_statustext_is_rate_limited() -> None:
         ep.send_frame(frame([obj(3, "moving", 0.0, collision=True, ttc=1.5)], T0 + k), T0 + k)
     for k in range(5):
         ep.poll(T0 + k * 300_000)
-    texts = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
-    assert len(texts) == 1 and "collision course track 3" in texts[0].text
+    texts = [m.text for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
+    alarms = [t for t in texts if "collision" in t]
+    assert len(alarms) == 1 and "collision course track 3" in alarms[0]
     assert ep.stats["statustext suppressed"] == 4
 
 
@@ -307,7 +309,8 @@ def _hb():  # type: ignore[no-untyped-def]
     )
 
 
-@settings(max_examples=200, deadline=None)
+# A longer run is one command: TCM_FUZZ_EXAMPLES=100000 pytest tests/test_endpoint.py -k fuzz
+@settings(max_examples=int(os.environ.get("TCM_FUZZ_EXAMPLES", "200")), deadline=None)
 @given(junk=st.lists(st.binary(max_size=300), max_size=20), seed=st.integers(0, 1000))
 def test_fuzz_receive_path_never_raises_and_keeps_working(junk: list[bytes], seed: int) -> None:
     ep, ap = connected()
@@ -352,3 +355,59 @@ def test_a_large_chunk_of_good_frames_is_parsed_whole() -> None:
     ev = ep.receive_data(chunk, T0 + 10)
     assert sum(isinstance(e, TelemetryReceived) for e in ev) == 3000
     assert ep.codec.stats["overflow bytes dropped"] == 0
+
+
+def test_truncated_frames_complete_across_reads() -> None:
+    ep, ap = connected()
+    frame = ap.attitude(BOOT0_MS)
+    assert ep.receive_data(frame[:7], T0) == []
+    ev = ep.receive_data(frame[7:], T0 + 1)
+    assert len(ev) == 1 and isinstance(ev[0], TelemetryReceived)
+
+
+def test_bad_crc_and_unknown_id_are_counted_and_skipped() -> None:
+    ep, ap = connected()
+    good = ap.attitude(BOOT0_MS)
+    bad = bytearray(good)
+    bad[-1] ^= 0x55
+    unknown = bytearray(ap.attitude(BOOT0_MS + 20))
+    unknown[7:10] = (60_123).to_bytes(3, "little")  # an id no dialect of ours knows
+    ev = ep.receive_data(bytes(bad) + bytes(unknown) + good, T0)
+    assert len(ev) == 1
+    assert ep.codec.stats["bad CRC"] >= 1 and ep.codec.stats["unknown message id"] >= 1
+
+
+def test_out_of_range_attitude_and_position_are_refused() -> None:
+    ep, ap = connected()
+    silly = ap.codec.encode(d.MAVLink_attitude_message(BOOT0_MS, 50.0, 0.0, 0.0, 0, 0, 0))
+    assert ep.receive_data(silly, T0) == [] and ep.stats["bad attitude"] == 1
+    nan_pos = ap.codec.encode(
+        d.MAVLink_local_position_ned_message(BOOT0_MS, math.nan, 0, 0, 0, 0, 0)
+    )
+    assert ep.receive_data(nan_pos, T0) == [] and ep.stats["bad position"] == 1
+
+
+def test_time_going_backwards_is_harmless() -> None:
+    ep, ap = connected(now=T0 + 10_000_000)
+    ep.poll(T0 + 10_000_000)
+    ep.data_to_send()
+    ep.poll(T0)  # the caller's clock stepped back
+    ev = ep.receive_data(ap.attitude(BOOT0_MS), T0 - 5_000_000)
+    assert any(isinstance(e, TelemetryReceived) for e in ev)
+    ep.poll(T0 + 11_000_000)
+    assert ap.receive(ep.data_to_send())  # still talking
+
+
+def test_statustext_on_connect_and_long_texts_are_chunked() -> None:
+    ep, ap = connected()
+    ep.poll(T0)
+    texts = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
+    assert [t.text for t in texts] == ["TCM companion online"]
+    ep.statustext(d.MAV_SEVERITY_WARNING, "x" * 120, T0 + 1_000_000)
+    ep.poll(T0 + 1_000_000)
+    chunks = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
+    assert (
+        len(chunks) == 3
+        and len({c.id for c in chunks}) == 1
+        and [c.chunk_seq for c in chunks] == [0, 1, 2]
+    )

@@ -290,6 +290,7 @@ class CompanionEndpoint:
             self.codec.src_system = src[0]  # we belong to the autopilot's system
             self._restart_requests(now_us)
             self._events.append(AutopilotFound(src[0], src[1], msg.autopilot, msg.type))
+            self.statustext(d.MAV_SEVERITY_INFO, "TCM companion online", now_us)
         elif not is_autopilot:
             self.stats["heartbeat of another component"] += 1
 
@@ -315,6 +316,7 @@ class CompanionEndpoint:
     def _on_reboot(self, now_us: int, keep_timesync: bool = False) -> None:
         self.stats["autopilot reboots"] += 1
         self._events.append(AutopilotRebooted())
+        self.statustext(d.MAV_SEVERITY_NOTICE, "TCM: autopilot reboot seen, re-requesting", now_us)
         if not keep_timesync:
             self.timesync = TimesyncFilter()
         self.telemetry_clock = ClockSync()

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from .core.pipeline import PipelineConfig
+from .mavlink.setup import MavlinkSettings
 
 
 class ConfigError(ValueError):
@@ -35,6 +36,7 @@ class ReplayConfig:
 class AppConfig:
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
+    mavlink: MavlinkSettings = field(default_factory=MavlinkSettings)
 
 
 def _describe(tp: Any) -> str:
@@ -149,13 +151,14 @@ def load_config(path: str | Path | None) -> AppConfig:
 
 
 def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
-    known = {"pipeline", "replay"} | {f.name for f in dataclasses.fields(PipelineConfig)}
+    known = {"pipeline", "replay", "mavlink"} | {f.name for f in dataclasses.fields(PipelineConfig)}
     for key in doc:
         if key not in known:
             raise ConfigError(f"{where}: unknown table [{key}] (known: {', '.join(sorted(known))})")
     try:
         pipeline = build_dataclass(PipelineConfig, _pipeline_table(doc), f"{where}: [pipeline]")
         replay = build_dataclass(ReplayConfig, doc.get("replay", {}), f"{where}: [replay]")
+        mavlink = build_dataclass(MavlinkSettings, doc.get("mavlink", {}), f"{where}: [mavlink]")
     except ConfigError as exc:
         msg = str(exc)
         # Report stage keys under their own table name, as the user wrote them.
@@ -164,4 +167,4 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
                 f"[pipeline].{name}:", f"[{name}]:"
             )
         raise ConfigError(msg) from None
-    return AppConfig(pipeline=pipeline, replay=replay)
+    return AppConfig(pipeline=pipeline, replay=replay, mavlink=mavlink)

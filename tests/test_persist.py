@@ -65,3 +65,27 @@ def test_timestamp_store(tmp_path: Path) -> None:
     assert ts.load() == 0
     ts.save(123456789)
     assert TimestampStore(tmp_path / "ts").load() == 123456789
+
+
+def test_make_endpoint_signing_and_params(tmp_path: Path) -> None:
+    from tcm_companion.mavlink.setup import MavlinkSettings, make_endpoint, persist
+
+    key = tmp_path / "key"
+    key.write_text("ab" * 32)
+    key.chmod(0o644)
+    settings = MavlinkSettings(
+        signing_key_file=str(key),
+        signing_timestamp_file=str(tmp_path / "ts"),
+        params_file=str(tmp_path / "params.json"),
+    )
+    with pytest.raises(SigningKeyError, match="chmod 600"):
+        make_endpoint(settings, 0)
+    key.chmod(0o600)
+    (tmp_path / "params.json").write_text('{"TCM_THRESH": 0.15, "TCM_INTERVAL": 999}')
+    ep, warnings = make_endpoint(settings, 0)
+    assert ep.codec.signing is not None and ep.params.values["TCM_THRESH"] == pytest.approx(0.15)
+    assert warnings and "TCM_INTERVAL" in warnings[0]
+    ep.codec.mav.signing.timestamp = 4242
+    persist(settings, ep)
+    again, _ = make_endpoint(settings, 0)
+    assert again.codec.signing_timestamp == 4242

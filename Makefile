@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint typecheck venv clean eval bench
+.PHONY: run test lint typecheck venv clean eval bench interop-env
 
 venv: $(STAMP)
 
@@ -26,6 +26,10 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy tcm_companion/core
 
+## MAVProxy's own venv (.venv-interop) for tests/test_interop.py: built once, then cached.
+interop-env: $(STAMP)
+	$(BIN)/python tools/interop_env.py --quiet
+
 test: lint typecheck
 	$(BIN)/python -m pytest -n 2 -q
 
@@ -36,4 +40,4 @@ bench: $(STAMP)
 	$(BIN)/tcm-companion bench
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache out
+	rm -rf $(VENV) .venv-interop .pytest_cache .mypy_cache .ruff_cache out

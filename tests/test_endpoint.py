@@ -411,3 +411,24 @@ def test_statustext_on_connect_and_long_texts_are_chunked() -> None:
         and len({c.id for c in chunks}) == 1
         and [c.chunk_seq for c in chunks] == [0, 1, 2]
     )
+
+
+def test_mavlink_ftp_requests_are_nakked_at_once() -> None:
+    ep, ap = connected()
+    gcs = MavlinkCodec(255, 190)
+    req = bytearray(251)
+    req[0], req[3] = 41, 4  # seq 41, OpenFileRO
+    ep.receive_data(gcs.encode(d.MAVLink_file_transfer_protocol_message(0, 7, 191, list(req))), T0)
+    (nak,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "FILE_TRANSFER_PROTOCOL"]
+    p = bytes(nak.payload)
+    assert (nak.target_system, nak.target_component) == (255, 190)
+    assert p[0] == 42 and p[3] == 129 and p[5] == 4 and p[12] == 7
+
+
+def test_float_parameters_keep_their_decimal_value() -> None:
+    ep, _ = connected()
+    gcs = MavlinkCodec(255, 190)
+    ev = ep.receive_data(
+        gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_THRESH", 0.12, 9)), T0
+    )
+    assert ev[0].value == 0.12  # not 0.11999999731779099

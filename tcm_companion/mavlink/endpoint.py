@@ -44,6 +44,8 @@ from .params import PARAMS, ParamTable
 from .timesync import TimesyncFilter
 
 MAV_COMP_ID_ALL = 0
+_FTP_NAK = 129  # MAVLink FTP opcode
+_FTP_ERR_UNKNOWN_COMMAND = 7
 
 
 @dataclass(frozen=True)
@@ -255,6 +257,9 @@ class CompanionEndpoint:
         elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             if self._addressed_to_us(msg.target_system, msg.target_component, broadcast=True):
                 self._on_param(msg, kind, now_us)
+        elif kind == "FILE_TRANSFER_PROTOCOL":
+            if self._addressed_to_us(msg.target_system, msg.target_component, broadcast=False):
+                self._on_ftp(msg, src, now_us)
         elif kind in ("GPS_GLOBAL_ORIGIN", "HOME_POSITION"):
             if from_autopilot and kind == "GPS_GLOBAL_ORIGIN":
                 self.origin = GlobalOrigin(
@@ -509,6 +514,27 @@ class CompanionEndpoint:
             now_us,
         )
         self._events.append(CommandReceived(cmd, params, src, result))
+
+    def _on_ftp(self, msg: Any, src: tuple[int, int], now_us: int) -> None:
+        """We serve no files: NAK every MAVLink FTP request at once, so a ground station
+        that tries FTP first (MAVProxy's parameter download) falls back without waiting
+        out its time-out."""
+        req = bytes(msg.payload)
+        if len(req) < 12:
+            self.stats["malformed ftp"] += 1
+            return
+        seq = (req[0] | (req[1] << 8)) + 1
+        payload = bytearray(251)
+        payload[0], payload[1] = seq & 0xFF, (seq >> 8) & 0xFF
+        payload[2] = req[2]  # session
+        payload[3] = _FTP_NAK
+        payload[4] = 1  # data size: the error code
+        payload[5] = req[3]  # the request's opcode
+        payload[12] = _FTP_ERR_UNKNOWN_COMMAND
+        self.stats["ftp refused"] += 1
+        self._send(
+            d.MAVLink_file_transfer_protocol_message(0, src[0], src[1], list(payload)), now_us
+        )
 
     def _param_value(self, index: int) -> Any:
         spec = PARAMS[index]

@@ -76,7 +76,9 @@ class ParamTable:
             return None
         if not spec.minimum <= value <= spec.maximum:
             return None
-        stored = float(round(value)) if spec.integer else float(value)
+        # Values arrive as 32-bit floats: keep the 7 significant digits they really have,
+        # so 0.12 is stored as 0.12 and not 0.11999999731779099.
+        stored = float(round(value)) if spec.integer else float(f"{value:.7g}")
         self.values[name] = stored
         return stored
 

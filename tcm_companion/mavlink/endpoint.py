@@ -94,6 +94,14 @@ class TelemetryReceived:
 
 
 @dataclass(frozen=True)
+class TelemetryRejected:
+    """A telemetry message arrived on time but could not be used (NaN, not a rotation)."""
+
+    kind: str  # "attitude" or "position"
+    reason: str
+
+
+@dataclass(frozen=True)
 class ParamChanged:
     name: str
     value: float
@@ -119,6 +127,7 @@ Event = (
     | AutopilotLost
     | AutopilotRebooted
     | TelemetryReceived
+    | TelemetryRejected
     | ParamChanged
     | CommandReceived
     | GlobalOrigin
@@ -336,6 +345,7 @@ class CompanionEndpoint:
             angles = (msg.roll, msg.pitch, msg.yaw)
             if not all(math.isfinite(a) and abs(a) <= 2 * math.pi for a in angles):
                 self.stats["bad attitude"] += 1
+                self._events.append(TelemetryRejected("attitude", "ATTITUDE not finite"))
                 return None
             return AttitudeSample.from_euler(boot_us, now_us, *angles)
         if kind == "ATTITUDE_QUATERNION":
@@ -343,12 +353,14 @@ class CompanionEndpoint:
             norm = float(np.linalg.norm(q))
             if not math.isfinite(norm) or abs(norm - 1.0) > 0.1:
                 self.stats["bad attitude"] += 1
+                self._events.append(TelemetryRejected("attitude", "quaternion not unit"))
                 return None
             return AttitudeSample.from_quaternion(boot_us, now_us, q)
         pos = np.array([msg.x, msg.y, msg.z], dtype=np.float64)
         vel = np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             self.stats["bad position"] += 1
+            self._events.append(TelemetryRejected("position", "LOCAL_POSITION_NED not finite"))
             return None
         return PositionSample(boot_us, now_us, pos, vel)
 

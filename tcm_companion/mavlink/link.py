@@ -51,6 +51,14 @@ class CompanionLink:
         self.endpoint.send_frame(result, self.now_us(), camera_id)
         self._wake.set()
 
+    async def flush(self) -> None:
+        """Write what the endpoint has queued now (frame outputs go out the same tick)."""
+        await self._flush()
+
+    def wake(self) -> None:
+        """Make the timer task poll the endpoint now (after health or STATUSTEXT changes)."""
+        self._wake.set()
+
     def stop(self) -> None:
         self._stopping = True
         self._wake.set()

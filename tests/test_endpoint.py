@@ -24,6 +24,7 @@ from tcm_companion.mavlink.endpoint import (
     EndpointConfig,
     ParamChanged,
     TelemetryReceived,
+    TelemetryRejected,
 )
 
 T0 = 1_000_000_000  # companion clock at start, µs
@@ -131,7 +132,10 @@ def test_telemetry_events_and_filtering() -> None:
     other = Autopilot(sysid=9)
     assert ep.receive_data(other.attitude(BOOT0_MS + 20), T0 + 6000) == []
     assert ep.stats["telemetry from another system"] == 1
-    assert ep.receive_data(ap.attitude(BOOT0_MS + 40, roll=math.nan), T0 + 7000) == []
+    # A NaN attitude is not a sample, but the daemon hears that it came (input invalid).
+    assert ep.receive_data(ap.attitude(BOOT0_MS + 40, roll=math.nan), T0 + 7000) == [
+        TelemetryRejected("attitude", "ATTITUDE out of range")
+    ]
     assert ep.stats["bad attitude"] == 1
 
 
@@ -380,11 +384,15 @@ def test_bad_crc_and_unknown_id_are_counted_and_skipped() -> None:
 def test_out_of_range_attitude_and_position_are_refused() -> None:
     ep, ap = connected()
     silly = ap.codec.encode(d.MAVLink_attitude_message(BOOT0_MS, 50.0, 0.0, 0.0, 0, 0, 0))
-    assert ep.receive_data(silly, T0) == [] and ep.stats["bad attitude"] == 1
+    assert ep.receive_data(silly, T0) == [TelemetryRejected("attitude", "ATTITUDE out of range")]
+    assert ep.stats["bad attitude"] == 1
     nan_pos = ap.codec.encode(
         d.MAVLink_local_position_ned_message(BOOT0_MS, math.nan, 0, 0, 0, 0, 0)
     )
-    assert ep.receive_data(nan_pos, T0) == [] and ep.stats["bad position"] == 1
+    assert ep.receive_data(nan_pos, T0) == [
+        TelemetryRejected("position", "LOCAL_POSITION_NED not finite")
+    ]
+    assert ep.stats["bad position"] == 1
 
 
 def test_time_going_backwards_is_harmless() -> None:

@@ -345,7 +345,7 @@ class CompanionEndpoint:
             angles = (msg.roll, msg.pitch, msg.yaw)
             if not all(math.isfinite(a) and abs(a) <= 2 * math.pi for a in angles):
                 self.stats["bad attitude"] += 1
-                self._events.append(TelemetryRejected("attitude", "ATTITUDE not finite"))
+                self._events.append(TelemetryRejected("attitude", "ATTITUDE out of range"))
                 return None
             return AttitudeSample.from_euler(boot_us, now_us, *angles)
         if kind == "ATTITUDE_QUATERNION":

@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint typecheck venv clean eval bench interop-env
+.PHONY: run demo test lint typecheck venv clean eval bench interop-env
 
 venv: $(STAMP)
 
@@ -14,9 +14,13 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-## Main job on the built-in simulated default: simulate the paper's TS/T45/T90 flights
-## and print the evaluation table.
+## Main job on the built-in simulated default: the daemon in SITL (mock autopilot +
+## simulated camera over loopback UDP) for 20 s, then accuracy, latency and faults.
 run: $(STAMP)
+	$(BIN)/tcm-companion sitl --duration 20
+
+## The paper's evaluation: simulate TS/T45/T90 and print the tables.
+demo: $(STAMP)
 	$(BIN)/tcm-companion demo
 
 lint: $(STAMP)
@@ -24,7 +28,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check tcm_companion tests tools
 
 typecheck: $(STAMP)
-	$(BIN)/mypy tcm_companion/core
+	$(BIN)/mypy tcm_companion/core tcm_companion/service tcm_companion/io/cameras tcm_companion/io/sdnotify.py
 
 ## MAVProxy's own venv (.venv-interop) for tests/test_interop.py: built once, then cached.
 interop-env: $(STAMP)

@@ -1,6 +1,7 @@
 """Command line: ``tcm-companion <command>``.
 
-Commands: ``demo`` (the default job: simulate the paper's flights and print the
+Commands: ``run`` (the flight daemon), ``sitl`` (mock autopilot + simulated camera +
+daemon), ``config check``, ``demo`` (simulate the paper's flights and print the
 evaluation), ``replay``, ``eval``, ``bench``, ``mock-autopilot``, ``sim export`` and
 ``sim list``.
 """
@@ -332,6 +333,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     mock_autopilot_arguments(p)
     p.set_defaults(func=run_mock_autopilot)
+
+    from .service.cli import add_parsers as service_parsers
+
+    service_parsers(sub)
 
     p = sub.add_parser("sim", help="the built-in simulator")
     ssub = p.add_subparsers(dest="sim_command", required=True)

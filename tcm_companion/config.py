@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 import types
 import typing
@@ -17,8 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .core.camera import _KEYS, CameraModel, CameraModelError, Equirectangular, camera_from_dict
 from .core.pipeline import PipelineConfig
+from .io.cameras.settings import CameraSettings
 from .mavlink.setup import MavlinkSettings
+from .service.companion import DaemonConfig
 
 
 class ConfigError(ValueError):
@@ -33,10 +37,86 @@ class ReplayConfig:
 
 
 @dataclass(frozen=True)
+class SimConfig:
+    """``[sim]``: the simulated vehicle flown by the mock autopilot when the camera source
+    is ``"sim"`` (``tcm-companion run`` with the repository's config, and ``sitl``)."""
+
+    scenario: str = "T90"  # TS, T45, T90, RAISED, INPLANE, COLLISION, HEADON, TWO
+    seed: int = 0  # turbulence of the flight, telemetry noise, sensor noise
+    telemetry_noise: float = 1.0  # scale of the mock's attitude/position noise (0: exact)
+    ekf_origin_delay_us: int = 3_000_000  # LOCAL_POSITION_NED starts this long after boot
+    brake_on_collision: bool = True  # the mock brakes on a collision-course alarm
+
+    def __post_init__(self) -> None:
+        from .sim.scenarios import SCENARIO_NAMES
+
+        if self.scenario.upper() not in SCENARIO_NAMES:
+            raise ValueError(
+                f"scenario must be one of {', '.join(SCENARIO_NAMES)}, got {self.scenario!r}"
+            )
+        if self.telemetry_noise < 0 or self.ekf_origin_delay_us < 0:
+            raise ValueError("telemetry_noise and ekf_origin_delay_us must be >= 0")
+
+
+def _default_camera_model() -> CameraModel:
+    return Equirectangular(360, 220)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """``[camera]``: the lens model the pipeline uses (the keys of a scenario's ``[camera]``:
+    ``model``, ``width``, ``height``, ``mount_rpy_deg`` and the model's intrinsics) and
+    where its frames come from (:class:`~tcm_companion.io.cameras.settings.CameraSettings`:
+    ``source``, ``device``, ``path`` …), in one table."""
+
+    model: CameraModel = field(default_factory=_default_camera_model)
+    source: CameraSettings = field(default_factory=CameraSettings)
+    name: str = "camera0"
+
+
+_MODEL_KEYS = {"model", "width", "height", "mount_rpy_deg"} | {
+    k for ks in _KEYS.values() for k in ks
+}
+
+
+def camera_config_from_table(table: Any, where: str) -> CameraConfig:
+    """Split ``[camera]`` into the lens model and the source settings; check both."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where} must be a table")
+    model_keys = {k: v for k, v in table.items() if k in _MODEL_KEYS}
+    source_keys = {k: v for k, v in table.items() if k not in _MODEL_KEYS and k != "name"}
+    name = table.get("name", "camera0")
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"{where}.name must be a non-empty string, got {name!r}")
+    if model_keys:
+        defaults = {"model": "equirectangular", "width": 360, "height": 220}
+        try:
+            model = camera_from_dict({**defaults, **model_keys}, where=where)
+        except CameraModelError as exc:
+            raise ConfigError(str(exc)) from None
+    else:
+        model = _default_camera_model()
+    try:
+        source = build_dataclass(CameraSettings, source_keys, where)
+    except ConfigError as exc:
+        # CameraSettings names its fields "camera.x"; say where they were written.
+        raise ConfigError(str(exc).replace(f"{where}: camera.", f"{where}.")) from None
+    if source.source == "dual_fisheye" and model.model_name != "equirectangular":
+        raise ConfigError(
+            f'{where}.model must be "equirectangular" for source = "dual_fisheye" '
+            "(the two fisheyes are stitched into a panorama)"
+        )
+    return CameraConfig(model=model, source=source, name=name)
+
+
+@dataclass(frozen=True)
 class AppConfig:
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     mavlink: MavlinkSettings = field(default_factory=MavlinkSettings)
+    daemon: DaemonConfig = field(default_factory=DaemonConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
 
 
 def _describe(tp: Any) -> str:
@@ -135,30 +215,115 @@ def _pipeline_table(doc: dict[str, Any]) -> dict[str, Any]:
     return table
 
 
-def load_config(path: str | Path | None) -> AppConfig:
-    """Read ``config.toml`` (``None``: built-in defaults)."""
-    if path is None:
-        return AppConfig()
-    p = Path(path)
+#: Environment variables ``TCM_COMPANION__TABLE__KEY=value`` override the file
+#: (e.g. ``TCM_COMPANION__MAVLINK__URL=serial:/dev/ttyAMA0:921600``); CLI ``--set
+#: table.key=value`` overrides both. Values are read as TOML (``0.1``, ``true``,
+#: ``[1, 2]``, ``"text"``), and as plain text when they are not valid TOML.
+ENV_PREFIX = "TCM_COMPANION__"
+
+
+def _toml_value(text: str) -> Any:
     try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: {exc}") from None
-    return config_from_dict(doc, str(p))
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _set_dotted(doc: dict[str, Any], path: list[str], value: Any, origin: str) -> None:
+    node = doc
+    for part in path[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"{origin}: {'.'.join(path)}: {part} is not a table")
+        node = child
+    node[path[-1]] = value
+
+
+def apply_overrides(
+    doc: dict[str, Any],
+    environ: typing.Mapping[str, str] | None = None,
+    sets: typing.Sequence[str] = (),
+) -> dict[str, str]:
+    """Apply environment then ``--set`` overrides to ``doc`` in place.
+
+    Returns ``{dotted key: where it was set}`` so that errors can name the variable or
+    flag that set a bad value.
+    """
+    origins: dict[str, str] = {}
+    for name, raw in sorted((environ or {}).items()):
+        if not name.startswith(ENV_PREFIX):
+            continue
+        path = [p.lower() for p in name[len(ENV_PREFIX) :].split("__") if p]
+        if len(path) < 2:
+            raise ConfigError(f"environment {name}: expected {ENV_PREFIX}TABLE__KEY")
+        _set_dotted(doc, path, _toml_value(raw), f"environment {name}")
+        origins[".".join(path)] = f"environment {name}"
+    for item in sets:
+        key, eq, raw = item.partition("=")
+        path = [p for p in key.strip().split(".") if p]
+        if not eq or len(path) < 2:
+            raise ConfigError(f"--set {item!r}: expected TABLE.KEY=VALUE")
+        _set_dotted(doc, path, _toml_value(raw.strip()), f"--set {item}")
+        origins[".".join(path)] = f"--set {key.strip()}"
+    return origins
+
+
+def load_config(
+    path: str | Path | None,
+    *,
+    environ: typing.Mapping[str, str] | None = None,
+    sets: typing.Sequence[str] = (),
+) -> AppConfig:
+    """Read ``config.toml`` (``None``: built-in defaults), then apply overrides.
+
+    Precedence: ``sets`` (CLI) > ``environ`` (``TCM_COMPANION__…``) > file > defaults.
+    """
+    doc: dict[str, Any] = {}
+    where = "config"
+    if path is not None:
+        p = Path(path)
+        where = str(p)
+        try:
+            with open(p, "rb") as fh:
+                doc = tomllib.load(fh)
+        except FileNotFoundError:
+            raise ConfigError(f"{p}: no such file") from None
+        except IsADirectoryError:
+            raise ConfigError(f"{p}: is a directory, not a TOML file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{p}: {exc}") from None
+    origins = apply_overrides(doc, environ, sets)
+    try:
+        return config_from_dict(doc, where)
+    except ConfigError as exc:
+        msg = str(exc)
+        for key, origin in origins.items():
+            table, _, name = key.rpartition(".")
+            if f"[{table}]" in msg and re.search(rf"\b{re.escape(name)}\b", msg):
+                msg += f" (set by {origin})"
+        raise ConfigError(msg) from None
+
+
+_TABLES = ("pipeline", "replay", "mavlink", "daemon", "sim", "camera")
 
 
 def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
-    known = {"pipeline", "replay", "mavlink"} | {f.name for f in dataclasses.fields(PipelineConfig)}
+    known = set(_TABLES) | {f.name for f in dataclasses.fields(PipelineConfig)}
     for key in doc:
         if key not in known:
             raise ConfigError(f"{where}: unknown table [{key}] (known: {', '.join(sorted(known))})")
     try:
         pipeline = build_dataclass(PipelineConfig, _pipeline_table(doc), f"{where}: [pipeline]")
-        replay = build_dataclass(ReplayConfig, doc.get("replay", {}), f"{where}: [replay]")
-        mavlink = build_dataclass(MavlinkSettings, doc.get("mavlink", {}), f"{where}: [mavlink]")
+        tables = {
+            name: build_dataclass(cls, doc.get(name, {}), f"{where}: [{name}]")
+            for name, cls in (
+                ("replay", ReplayConfig),
+                ("mavlink", MavlinkSettings),
+                ("daemon", DaemonConfig),
+                ("sim", SimConfig),
+            )
+        }
+        camera = camera_config_from_table(doc.get("camera", {}), f"{where}: [camera]")
     except ConfigError as exc:
         msg = str(exc)
         # Report stage keys under their own table name, as the user wrote them.
@@ -167,4 +332,4 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
                 f"[pipeline].{name}:", f"[{name}]:"
             )
         raise ConfigError(msg) from None
-    return AppConfig(pipeline=pipeline, replay=replay, mavlink=mavlink)
+    return AppConfig(pipeline=pipeline, camera=camera, **tables)

@@ -38,7 +38,25 @@ def test_degrees_and_nested_tables() -> None:
         ),
         ({"pipeline": {"bsm_enabled": "yes"}}, r"bsm_enabled must be true or false"),
         ({"tracking": {"gate_deg": "wide"}}, r"gate_deg must be a number of degrees"),
-        ({"camera": {}}, r"unknown table \[camera\]"),
+        ({"cameras": {}}, r"unknown table \[cameras\]"),
+        ({"camera": {"source": "webcam"}}, r"\[camera\].source must be one of"),
+        ({"camera": {"model": "pinhole", "width": 640}}, r"\[camera\].fx is required"),
+        ({"camera": {"width": -3}}, r"\[camera\].width must be a positive integer"),
+        ({"camera": {"source": "file"}}, r"\[camera\].path must be given"),
+        ({"camera": {"exposre": 3}}, r"\[camera\]: unknown key 'exposre'"),
+        (
+            {
+                "camera": {
+                    "model": "fisheye",
+                    **{"fx": 200.0, "fy": 200.0, "cx": 320.0, "cy": 320.0},
+                    **{"width": 640, "height": 640, "dist": [0.0, 0.0, 0.0, 0.0]},
+                    "source": "dual_fisheye",
+                }
+            },
+            r"must be \"equirectangular\"",
+        ),
+        ({"daemon": {"attitude_timeout_us": 0}}, r"\[daemon\]: attitude_timeout_us must be > 0"),
+        ({"sim": {"scenario": "T100"}}, r"\[sim\]: scenario must be one of"),
         ({"detection": {"seed_hue_deg": [1.0]}}, r"seed_hue_deg must have 2 items"),
     ],
 )
@@ -54,3 +72,101 @@ def test_file_errors(tmp_path: Path) -> None:
         load_config(bad)
     with pytest.raises(ConfigError, match="no such file"):
         load_config(tmp_path / "missing.toml")
+
+
+def test_precedence_cli_over_environment_over_file(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text('[mavlink]\nurl = "udpout:10.0.0.1:14550"\n[classifier]\ntcm_threshold = 0.1\n')
+    env = {
+        "TCM_COMPANION__MAVLINK__URL": "serial:/dev/ttyAMA0:921600",
+        "TCM_COMPANION__CLASSIFIER__TCM_THRESHOLD": "0.12",
+        "UNRELATED": "x",
+    }
+    cfg = load_config(f)
+    assert cfg.mavlink.url == "udpout:10.0.0.1:14550"
+    cfg = load_config(f, environ=env)
+    assert cfg.mavlink.url == "serial:/dev/ttyAMA0:921600"
+    assert cfg.pipeline.classifier.tcm_threshold == 0.12
+    cfg = load_config(f, environ=env, sets=["classifier.tcm_threshold=0.2", "camera.source=device"])
+    assert cfg.pipeline.classifier.tcm_threshold == 0.2
+    assert cfg.mavlink.url == "serial:/dev/ttyAMA0:921600"
+    assert cfg.camera.source.source == "device"
+    # Defaults stay for what nobody set.
+    assert cfg.pipeline.classifier.frame_interval == AppConfig().pipeline.classifier.frame_interval
+
+
+def test_override_errors_name_the_variable_or_flag(tmp_path: Path) -> None:
+    with pytest.raises(
+        ConfigError, match=r"set by environment TCM_COMPANION__DAEMON__CAMERA_TIMEOUT_US"
+    ):
+        load_config(None, environ={"TCM_COMPANION__DAEMON__CAMERA_TIMEOUT_US": "-5"})
+    with pytest.raises(ConfigError, match=r"set by --set sim.scenario"):
+        load_config(None, sets=["sim.scenario=NOPE"])
+    with pytest.raises(ConfigError, match=r"expected TABLE.KEY=VALUE"):
+        load_config(None, sets=["threshold"])
+    with pytest.raises(ConfigError, match=r"TCM_COMPANION__X: expected"):
+        load_config(None, environ={"TCM_COMPANION__X": "1"})
+
+
+def test_camera_table_holds_the_model_and_the_source() -> None:
+    cfg = config_from_dict(
+        {
+            "camera": {
+                "model": "pinhole",
+                "width": 640,
+                "height": 480,
+                "fx": 320.0,
+                "fy": 320.0,
+                "cx": 320.0,
+                "cy": 240.0,
+                "dist": [0.0, 0.0, 0.0, 0.0, 0.0],
+                "mount_rpy_deg": [0.0, -10.0, 90.0],
+                "source": "device",
+                "device": "/dev/video2",
+                "fourcc": "MJPG",
+            }
+        }
+    )
+    assert cfg.camera.model.model_name == "pinhole" and cfg.camera.model.width == 640
+    assert cfg.camera.source.device == "/dev/video2" and cfg.camera.source.fourcc == "MJPG"
+
+
+def test_config_check_prints_an_effective_config_that_loads_back(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "tcm_companion",
+            "config",
+            "check",
+            str(ROOT / "config.toml"),
+            "--set",
+            "classifier.tcm_threshold=0.11",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert "OK" in out.splitlines()[0]
+    body = "\n".join(out.splitlines()[1:])
+    again = tmp_path / "effective.toml"
+    again.write_text(body)
+    cfg = load_config(again)
+    assert cfg.pipeline.classifier.tcm_threshold == 0.11
+    assert dataclasses_replace_threshold(cfg) == AppConfig()
+    bad = subprocess.run(
+        [sys.executable, "-m", "tcm_companion", "config", "check", str(ROOT / "nope.toml")],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 2 and "nope.toml: no such file" in bad.stderr
+
+
+def dataclasses_replace_threshold(cfg: AppConfig) -> AppConfig:
+    import dataclasses
+
+    cls = dataclasses.replace(cfg.pipeline.classifier, tcm_threshold=0.09)
+    return dataclasses.replace(cfg, pipeline=dataclasses.replace(cfg.pipeline, classifier=cls))

@@ -9,7 +9,8 @@ parameter changes and at shutdown.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 from ..io.persist import ParamStore, TimestampStore, load_signing_key
 from .codec import SigningConfig
@@ -22,8 +23,24 @@ class MavlinkSettings:
     endpoint: EndpointConfig = field(default_factory=EndpointConfig)
     signing_key_file: str = ""  # empty: no signing
     signing_link_id: int = 0
-    signing_timestamp_file: str = "/var/lib/tcm-companion/signing_timestamp"
-    params_file: str = "/var/lib/tcm-companion/params.json"
+    # Relative paths are in the state directory ([daemon] state_dir; under systemd
+    # /var/lib/tcm-companion through StateDirectory=).
+    signing_timestamp_file: str = "signing_timestamp"
+    params_file: str = "params.json"
+
+
+def resolve_state_paths(settings: MavlinkSettings, state_dir: str | Path) -> MavlinkSettings:
+    """``settings`` with relative state file paths made absolute under ``state_dir``."""
+    base = Path(state_dir)
+
+    def under(name: str) -> str:
+        return name if not name or Path(name).is_absolute() else str(base / name)
+
+    return replace(
+        settings,
+        signing_timestamp_file=under(settings.signing_timestamp_file),
+        params_file=under(settings.params_file),
+    )
 
 
 def make_endpoint(settings: MavlinkSettings, now_us: int) -> tuple[CompanionEndpoint, list[str]]:

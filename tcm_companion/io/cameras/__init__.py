@@ -1,0 +1,62 @@
+"""Camera sources behind one interface, read by one thread per camera.
+
+- :mod:`.base` — the contract: :class:`FrameSource` (``open``/``read``/``close``),
+  :class:`Frame`, :class:`CameraStats`, the errors, the companion clock.
+- :mod:`.reader` — :class:`CameraReader`, the per-camera daemon thread.
+- Sources: :class:`OpenCVDevice`, :class:`GStreamerSource`, :class:`VideoFileSource`
+  (:mod:`.opencv`), :class:`FramesDirSource`, :class:`ScenarioSource`,
+  :class:`SimulatedCamera`, :class:`DualFisheyeSource` (with ``stitch.FisheyeStitcher``).
+- :mod:`.settings` — ``[camera]`` of config.toml and :func:`open_source`, the registry.
+
+Sources are imported lazily (``from tcm_companion.io.cameras import OpenCVDevice`` imports
+only :mod:`.opencv`), as python-can imports its interfaces.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from .base import (
+    CameraError,
+    CameraGone,
+    CameraStats,
+    EndOfStream,
+    Frame,
+    FrameSource,
+    monotonic_us,
+)
+from .reader import CameraReader
+
+_LAZY = {
+    "OpenCVDevice": ".opencv",
+    "GStreamerSource": ".opencv",
+    "VideoFileSource": ".opencv",
+    "gstreamer_available": ".opencv",
+    "FramesDirSource": ".frames_dir",
+    "ScenarioSource": ".scenario_source",
+    "SimulatedCamera": ".sim",
+    "DualFisheyeSource": ".dual_fisheye",
+    "CameraSettings": ".settings",
+    "FisheyeCameraSettings": ".settings",
+    "open_source": ".settings",
+}
+
+__all__ = [
+    "CameraError",
+    "CameraGone",
+    "CameraReader",
+    "CameraStats",
+    "EndOfStream",
+    "Frame",
+    "FrameSource",
+    "monotonic_us",
+    *_LAZY,
+]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(module, __name__), name)

@@ -1,0 +1,291 @@
+"""``tcm-companion run``, ``sitl`` and ``config check``: argument parsing, logging, uvloop.
+
+``run`` is the service systemd starts: it loads the configuration (CLI ``--set`` >
+environment > file > defaults), builds the camera source, and runs the daemon on uvloop
+until SIGTERM/SIGINT, notifying systemd (READY, STATUS, WATCHDOG, STOPPING). With
+``[camera] source = "sim"`` there is no vehicle to look at, so ``run`` flies the mock
+autopilot in the same process (SITL) and goes on until stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import os
+import signal
+import sys
+from collections.abc import Callable, Coroutine
+from pathlib import Path
+from typing import Any
+
+from ..config import AppConfig, ConfigError, load_config
+
+log = logging.getLogger("tcm_companion")
+
+DEFAULT_CONFIG = Path("config.toml")
+
+
+def add_config_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--config", help="config.toml (default: ./config.toml if present, else built-in)"
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="TABLE.KEY=VALUE",
+        help="override one setting (repeatable; beats TCM_COMPANION__TABLE__KEY and the file)",
+    )
+    p.add_argument(
+        "--log-level",
+        default="INFO",
+        choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+        help="log messages to stderr at this level (journald keeps them under systemd)",
+    )
+
+
+def config_from_args(args: argparse.Namespace) -> AppConfig:
+    path = args.config
+    if path is None and DEFAULT_CONFIG.is_file():
+        path = DEFAULT_CONFIG
+    return load_config(path, environ=os.environ, sets=list(args.set))
+
+
+def _setup_logging(level: str) -> None:
+    # Under systemd stderr goes to the journal, which adds its own time stamps.
+    fmt = (
+        "%(levelname)s %(name)s: %(message)s"
+        if os.environ.get("JOURNAL_STREAM")
+        else "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    logging.basicConfig(level=getattr(logging, level), format=fmt, stream=sys.stderr)
+
+
+def state_dir_for(config: AppConfig) -> Path:
+    """``[daemon] state_dir``, else systemd's, XDG's or ~/.local/state/tcm-companion."""
+    if config.daemon.state_dir:
+        return Path(config.daemon.state_dir)
+    env = os.environ.get("STATE_DIRECTORY")
+    if env:
+        return Path(env.split(":")[0])
+    xdg = os.environ.get("XDG_STATE_HOME")
+    base = Path(xdg) if xdg else Path.home() / ".local" / "state"
+    return base / "tcm-companion"
+
+
+def _run_loop(main: Callable[[], Coroutine[Any, Any, int]]) -> int:
+    """Run ``main`` on uvloop (the asyncio loop written in libuv), asyncio if missing."""
+    try:
+        import uvloop
+    except ImportError:  # pragma: no cover - uvloop is a dependency; a bare install still runs
+        return asyncio.run(main())
+    return uvloop.run(main())
+
+
+def _install_signals(stop: asyncio.Event) -> None:
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+
+
+class _StatusPrinter:
+    """The live one-line status: rewritten in place on a terminal, a line every 5 s else."""
+
+    def __init__(self, stream: Any = sys.stderr, every: int = 5) -> None:
+        self.stream = stream
+        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+        self.every = every
+        self.n = 0
+
+    def __call__(self, line: str) -> None:
+        self.n += 1
+        if self.tty:
+            self.stream.write("\r\x1b[2K" + line[:200])
+            self.stream.flush()
+        elif self.n % self.every == 1 or self.every == 1:
+            print(line, file=self.stream, flush=True)
+
+    def done(self) -> None:
+        if self.tty and self.n:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+# -- run ------------------------------------------------------------------------------------
+def cmd_run(args: argparse.Namespace) -> int:
+    _setup_logging(args.log_level)
+    config = config_from_args(args)
+    from ..io.sdnotify import Notifier, watchdog_interval_us
+
+    notifier = Notifier.from_env()
+    wd_us = watchdog_interval_us(os.environ)
+    state = state_dir_for(config)
+    try:
+        state.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"error: state directory {state}: {exc.strerror}", file=sys.stderr)
+        return 2
+    from ..mavlink.setup import resolve_state_paths
+
+    config = dataclasses.replace(config, mavlink=resolve_state_paths(config.mavlink, state))
+    printer = _StatusPrinter(every=args.status_every) if not args.no_status else None
+
+    if config.camera.source.source == "sim":
+
+        async def main_sim() -> int:
+            from .sitl import run_sitl
+
+            stop = asyncio.Event()
+            _install_signals(stop)
+            log.info("camera source is the simulator: flying the mock autopilot (SITL)")
+            report = await run_sitl(
+                config,
+                camera_model=config.camera.model,
+                duration_s=args.duration,
+                stop=stop,
+                notifier=notifier,
+                on_status=printer,
+                state_dir=str(state),
+            )
+            if printer is not None:
+                printer.done()
+            print("\n".join(report.lines()))
+            return 0 if report.ok else 1
+
+        return _run_loop(main_sim)
+
+    async def main_flight() -> int:
+        from ..io.cameras.base import CameraError
+        from ..io.cameras.settings import open_source
+        from .daemon import CameraInput, Daemon
+
+        cam = config.camera
+        try:
+            source = open_source(cam.source, cam.model)
+        except CameraError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        stop = asyncio.Event()
+        _install_signals(stop)
+        if args.duration is not None:
+            asyncio.get_running_loop().call_later(args.duration, stop.set)
+        daemon = Daemon(
+            config,
+            [CameraInput(cam.name, cam.model, source)],
+            notifier=notifier,
+            watchdog_interval_us=wd_us,
+            on_status=printer,
+        )
+        summary = await daemon.run(stop)
+        if printer is not None:
+            printer.done()
+        lat = summary.latency_percentile_ms(99)
+        print(
+            f"stopped after {summary.duration_s:.1f} s: captured {summary.captured}, processed "
+            f"{summary.processed}, dropped {summary.dropped}, failed {summary.failed}, rejected "
+            f"{summary.rejected}; latency p99 {lat:.2f} ms; faults {summary.faults or 'none'}"
+        )
+        return 0
+
+    return _run_loop(main_flight)
+
+
+# -- sitl -----------------------------------------------------------------------------------
+def cmd_sitl(args: argparse.Namespace) -> int:
+    _setup_logging(args.log_level)
+    config = config_from_args(args)
+    if args.scenario:
+        config = dataclasses.replace(
+            config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
+        )
+    printer = _StatusPrinter(every=args.status_every)
+
+    async def main() -> int:
+        from .sitl import run_sitl
+
+        stop = asyncio.Event()
+        _install_signals(stop)
+        report = await run_sitl(
+            config,
+            camera_model=config.camera.model,
+            duration_s=args.duration,
+            stop=stop,
+            on_status=printer,
+        )
+        printer.done()
+        print("\n".join(report.lines()))
+        return 0 if report.ok else 1
+
+    return _run_loop(main)
+
+
+# -- config check ---------------------------------------------------------------------------
+def _plain(value: Any) -> Any:
+    """Dataclasses, tuples and camera models as TOML-writable values."""
+    if hasattr(value, "to_dict") and callable(value.to_dict):
+        return _plain(value.to_dict())
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init}
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    return value
+
+
+def effective_config_toml(config: AppConfig) -> str:
+    """The configuration in force, as TOML (the camera's model and source in one table)."""
+    import tomli_w
+
+    doc = _plain(config)
+    cam = doc.pop("camera")
+    camera = {"name": cam["name"], **cam["model"], **cam["source"]}
+    doc["camera"] = camera
+    return tomli_w.dumps(doc)
+
+
+def cmd_config_check(args: argparse.Namespace) -> int:
+    try:
+        config = load_config(args.file, environ=os.environ, sets=list(args.set))
+    except ConfigError as exc:
+        print(f"config error: {exc}", file=sys.stderr)
+        return 2
+    print(f"# {args.file}: OK. Effective configuration (CLI > environment > file > defaults):")
+    print(effective_config_toml(config))
+    return 0
+
+
+def add_parsers(sub: Any) -> None:
+    """Register ``run``, ``sitl`` and ``config`` on the main parser's subparsers."""
+    p = sub.add_parser("run", help="the flight daemon (what systemd starts)")
+    add_config_arguments(p)
+    p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    p.add_argument("--no-status", action="store_true", help="no status line on stderr")
+    p.add_argument(
+        "--status-every", type=int, default=5, help="status line every N s when not a terminal"
+    )
+    p.set_defaults(func=cmd_run)
+
+    from ..sim.scenarios import SCENARIO_NAMES
+
+    p = sub.add_parser(
+        "sitl", help="mock autopilot + simulated camera + the daemon over loopback UDP"
+    )
+    add_config_arguments(p)
+    p.add_argument("--scenario", type=str.upper, choices=SCENARIO_NAMES, default=None)
+    p.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    p.add_argument(
+        "--status-every", type=int, default=5, help="status line every N s when not a terminal"
+    )
+    p.set_defaults(func=cmd_sitl)
+
+    p = sub.add_parser("config", help="configuration tools")
+    csub = p.add_subparsers(dest="config_command", required=True)
+    c = csub.add_parser("check", help="validate a config file and print the effective settings")
+    c.add_argument("file")
+    c.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE")
+    c.set_defaults(func=cmd_config_check)

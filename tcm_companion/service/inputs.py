@@ -1,0 +1,136 @@
+"""Per-input health — alive, rate OK, valid — from arrival times on an injected clock.
+
+openpilot's ``SubMaster`` is the model: each input the daemon depends on (every camera,
+the autopilot's attitude, its position) has an expected rate; an input is *alive* while
+its newest message is younger than a time-out, *rate OK* while the rate over the last
+window is at least a fraction of the expected one, and *valid* while its newest message
+was usable (a NaN attitude arrives on time but is not valid). An input is *healthy*
+when all three hold. Objects whose result needs an unhealthy input are reported
+``unknown`` with the input's name as the reason.
+
+Pure: times are arguments (µs on the companion's monotonic clock); nothing here reads
+a clock.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """What the daemon expects of one input."""
+
+    name: str  # e.g. "camera0", "attitude", "position"
+    expected_hz: float
+    timeout_us: int  # alive while the newest message is younger than this
+    min_rate_fraction: float = 0.5  # rate OK at or above this fraction of expected_hz
+    window_us: int = 2_000_000  # rate measured over this window
+    required: bool = True  # an unhealthy optional input is reported but does not fault
+
+    def __post_init__(self) -> None:
+        if self.expected_hz <= 0 or self.timeout_us <= 0 or self.window_us <= 0:
+            raise ValueError(f"input {self.name}: rates, time-outs and windows must be > 0")
+        if not 0.0 <= self.min_rate_fraction <= 1.0:
+            raise ValueError(f"input {self.name}: min_rate_fraction must be in [0, 1]")
+
+
+@dataclass(frozen=True)
+class InputStatus:
+    name: str
+    alive: bool
+    rate_ok: bool
+    valid: bool
+    rate_hz: float
+    age_us: int | None  # since the newest message; None: never received
+
+    @property
+    def healthy(self) -> bool:
+        return self.alive and self.rate_ok and self.valid
+
+    @property
+    def problem(self) -> str:
+        """Short reason for STATUSTEXT and ``unknown`` states ("" when healthy)."""
+        if self.age_us is None:
+            return f"{self.name} missing"
+        if not self.alive:
+            return f"{self.name} stale"
+        if not self.valid:
+            return f"{self.name} invalid"
+        if not self.rate_ok:
+            return f"{self.name} slow ({self.rate_hz:.0f} Hz)"
+        return ""
+
+
+class InputMonitor:
+    """Arrival times of one input; :meth:`status` judges them at a given time."""
+
+    def __init__(self, spec: InputSpec, started_us: int) -> None:
+        self.spec = spec
+        self._started_us = started_us
+        # Enough arrivals for the window at twice the expected rate; older ones drop.
+        maxlen = max(8, int(2 * spec.expected_hz * spec.window_us / 1e6) + 2)
+        self._arrivals: deque[int] = deque(maxlen=maxlen)
+        self._last_valid = True
+        self.received = 0
+        self.invalid = 0
+
+    def update(self, t_us: int, valid: bool = True) -> None:
+        """One message arrived at ``t_us``; ``valid`` says whether it was usable."""
+        if self._arrivals and t_us < self._arrivals[-1]:
+            # The clock the arrivals are stamped with never goes backwards; if a caller's
+            # does, start the window over rather than compute a negative rate.
+            self._arrivals.clear()
+        self._arrivals.append(t_us)
+        self._last_valid = valid
+        self.received += 1
+        if not valid:
+            self.invalid += 1
+
+    def status(self, now_us: int) -> InputStatus:
+        spec = self.spec
+        if not self._arrivals:
+            return InputStatus(spec.name, False, False, False, 0.0, None)
+        age = now_us - self._arrivals[-1]
+        alive = age <= spec.timeout_us
+        lo = now_us - spec.window_us
+        n = sum(1 for t in self._arrivals if t > lo)
+        # Before a whole window has passed since start, measure over the time there was.
+        span_us = min(spec.window_us, max(now_us - self._started_us, 1))
+        rate = n / (span_us / 1e6)
+        warming = now_us - self._started_us < spec.window_us
+        rate_ok = warming or rate >= spec.min_rate_fraction * spec.expected_hz
+        return InputStatus(spec.name, alive, rate_ok, self._last_valid, rate, age)
+
+
+class Inputs:
+    """All monitored inputs of the daemon, with change detection for reporting."""
+
+    def __init__(self, specs: list[InputSpec], started_us: int) -> None:
+        names = [s.name for s in specs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"input names must be unique, got {names}")
+        self.monitors = {s.name: InputMonitor(s, started_us) for s in specs}
+        self._last_problem: dict[str, str] = {}
+
+    def update(self, name: str, t_us: int, valid: bool = True) -> None:
+        self.monitors[name].update(t_us, valid)
+
+    def status(self, now_us: int) -> dict[str, InputStatus]:
+        return {name: m.status(now_us) for name, m in self.monitors.items()}
+
+    def healthy(self, name: str, now_us: int) -> bool:
+        return self.monitors[name].status(now_us).healthy
+
+    def changes(self, now_us: int) -> list[tuple[str, str]]:
+        """``(input, problem)`` for every input whose problem changed since the last
+        call; problem "" means it recovered. The first call reports only problems."""
+        out = []
+        for name, st in self.status(now_us).items():
+            problem = st.problem
+            before = self._last_problem.get(name, "")
+            if problem != before:
+                out.append((name, problem))
+            self._last_problem[name] = problem
+        return out

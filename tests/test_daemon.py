@@ -1,0 +1,334 @@
+"""The daemon in SITL: the fault matrix, frame accounting, the watchdog, signals.
+
+Each test flies the mock autopilot with a camera rendered from its true state and the
+real daemon in real time for a few seconds (service/sitl.py), and breaks one thing: the
+camera (nothing, wrong sizes, gone and back), the autopilot link (lost and back), the
+autopilot's clock (a reboot), the pipeline (an exception on one frame), the event loop
+(blocked: no watchdog ping), and the process (SIGTERM, under a fake NOTIFY_SOCKET).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tcm_companion.config import AppConfig
+from tcm_companion.core.pipeline import Pipeline
+from tcm_companion.io.cameras.base import CameraGone, FrameSource
+from tcm_companion.io.cameras.sim import SimulatedCamera
+from tcm_companion.io.transports.memory import MemoryTransport
+from tcm_companion.mavlink.endpoint import EndpointConfig
+from tcm_companion.service.daemon import _format_status
+from tcm_companion.service.sitl import SitlReport, run_sitl
+from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def sitl(tmp_path: Path, duration_s: float = 4.0, **kw: Any) -> SitlReport:
+    config = kw.pop("config", AppConfig())
+    return asyncio.run(run_sitl(config, duration_s=duration_s, state_dir=str(tmp_path), **kw))
+
+
+class RecordingNotifier:
+    def __init__(self) -> None:
+        self.calls: list[tuple[float, str, str]] = []
+
+    def ready(self, status: str = "") -> None:
+        self.calls.append((time.monotonic(), "READY", status))
+
+    def status(self, text: str) -> None:
+        self.calls.append((time.monotonic(), "STATUS", text))
+
+    def watchdog(self) -> None:
+        self.calls.append((time.monotonic(), "WATCHDOG", ""))
+
+    def stopping(self) -> None:
+        self.calls.append((time.monotonic(), "STOPPING", ""))
+
+    def kinds(self) -> list[str]:
+        return [k for _, k, _ in self.calls]
+
+
+class Faulty(FrameSource):
+    """Wraps a source; ``fault(k)`` for the k-th read returns "gone", "wrong", "empty" or None."""
+
+    def __init__(self, inner: FrameSource, fault: Any) -> None:
+        super().__init__(inner.name, inner.width, inner.height)
+        self.inner = inner
+        self.fault = fault
+        self.k = 0
+
+    def open(self) -> None:
+        self.inner.open()
+
+    def read(self) -> tuple[np.ndarray | None, int | None]:
+        self.k += 1
+        image, t = self.inner.read()
+        what = self.fault(self.k)
+        if what == "gone":
+            raise CameraGone("unplugged (test)")
+        if what == "wrong" and image is not None:
+            return image[:, :-8], t
+        if what == "empty":
+            return None, t
+        return image, t
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def interrupt(self) -> None:
+        getattr(self.inner, "interrupt", lambda: None)()
+
+
+def test_a_normal_flight_accounts_for_every_frame_and_pings_the_watchdog(tmp_path: Path) -> None:
+    notifier = RecordingNotifier()
+    report = sitl(tmp_path, 5.0, notifier=notifier)
+    s = report.summary
+    assert report.ok, report.lines()
+    assert s.frames_balance and s.captured == s.processed + s.dropped + s.failed + s.rejected
+    assert s.processed >= 40  # ~25 Hz once the renderer is up (CI machines are slower)
+    assert report.mock_status_received >= 0.9 * s.stats.objects_sent > 0
+    assert report.score.matched > 40 and report.score.accuracy >= 0.95
+    kinds = notifier.kinds()
+    assert kinds[0] == "READY" and kinds[-1] == "STOPPING" and kinds.count("WATCHDOG") >= 3
+    # Parameters and the signing timestamp live in the state directory.
+    assert (tmp_path / "params.json").exists()
+
+
+def test_wrong_sized_and_empty_frames_are_rejected_and_counted(tmp_path: Path) -> None:
+    def factory(mock: MockAutopilot, model: Any) -> FrameSource:
+        fault = {0: None, 1: "wrong", 2: "empty"}
+        return Faulty(
+            SimulatedCamera.for_mock(model, mock), lambda k: fault[k % 5 if k % 5 < 3 else 0]
+        )
+
+    report = sitl(tmp_path, 4.0, camera_factory=factory)
+    s = report.summary
+    cam = next(iter(s.camera_stats.values()))
+    assert cam.rejected_size > 5 and cam.rejected_empty > 5
+    assert s.rejected == cam.rejected_size + cam.rejected_empty
+    assert s.frames_balance and s.processed > 20 and report.ok
+
+
+def test_a_camera_that_disappears_and_comes_back(tmp_path: Path) -> None:
+    t_gone = {}
+
+    def fault(k: int) -> str | None:
+        now = time.monotonic()
+        if k == 30:
+            t_gone["start"] = now
+        start = t_gone.get("start")
+        return "gone" if start is not None and now - start < 1.5 else None
+
+    def factory(mock: MockAutopilot, model: Any) -> FrameSource:
+        return Faulty(SimulatedCamera.for_mock(model, mock), fault)
+
+    report = sitl(tmp_path, 6.0, camera_factory=factory)
+    s = report.summary
+    cam = next(iter(s.camera_stats.values()))
+    assert cam.read_errors >= 1 and cam.reconnects >= 1
+    assert s.faults.get("camera0 stale", 0) >= 1  # reported ...
+    assert report.ok and s.frames_balance  # ... and recovered by itself
+    assert s.processed > 40
+
+
+def test_a_pipeline_exception_on_one_frame(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = Pipeline.step
+    calls = {"n": 0}
+
+    def step(self: Pipeline, *a: Any, **k: Any) -> Any:
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise FloatingPointError("injected")
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Pipeline, "step", step)
+    report = sitl(tmp_path, 4.0)
+    s = report.summary
+    assert s.failed == 1 and s.faults.get("pipeline exception") == 1
+    assert s.processed > 40 and s.frames_balance and report.ok
+
+
+class Cuttable(MemoryTransport):
+    cut = False
+
+    async def _write(self, data: memoryview) -> None:
+        if self.cut:
+            return  # the radio is out: bytes vanish
+        await super()._write(data)
+
+
+def test_autopilot_link_lost_and_back(tmp_path: Path) -> None:
+    a, b = Cuttable("memory:a"), Cuttable("memory:b")
+    a._peer, b._peer = b, a
+    a._mark_open()
+    b._mark_open()
+    config = AppConfig()
+    config = dataclasses.replace(
+        config,
+        mavlink=dataclasses.replace(
+            config.mavlink, endpoint=EndpointConfig(autopilot_timeout_us=1_000_000)
+        ),
+    )
+
+    async def go() -> SitlReport:
+        async def cut() -> None:
+            await asyncio.sleep(2.5)
+            a.cut = b.cut = True
+            await asyncio.sleep(2.0)
+            a.cut = b.cut = False
+
+        task = asyncio.create_task(cut())
+        report = await run_sitl(config, duration_s=7.0, state_dir=str(tmp_path), links=(a, b))
+        await task
+        return report
+
+    report = asyncio.run(go())
+    s = report.summary
+    assert s.faults.get("autopilot lost", 0) >= 1
+    assert s.faults.get("attitude stale", 0) >= 1
+    assert s.stats.objects_unknown_by_input > 0  # objects were unknown while it was out
+    assert s.endpoint_stats.get("statustext suppressed", 0) >= 0
+    # After the link is back, statuses flow and are decided again.
+    assert report.score.decided > 20 and report.ok
+
+
+def test_an_autopilot_reboot_mid_flight(tmp_path: Path) -> None:
+    mock = MockAutopilot(
+        MockAutopilotConfig(scenario="T90", unix_us_at_start=1_718_000_000_000_000),
+        time.monotonic_ns() // 1000,
+    )
+
+    rebooted = {}
+
+    async def go() -> SitlReport:
+        async def reboot() -> None:
+            await asyncio.sleep(2.5)
+            rebooted["us"] = time.monotonic_ns() // 1000
+            mock.reboot(rebooted["us"])
+
+        task = asyncio.create_task(reboot())
+        report = await run_sitl(AppConfig(), duration_s=7.0, state_dir=str(tmp_path), mock=mock)
+        await task
+        return report
+
+    report = asyncio.run(go())
+    s = report.summary
+    assert s.faults.get("autopilot reboot", 0) >= 1
+    # Until the next TIMESYNC reply shows the new boot clock (at most ~1 s, at 1 Hz), our
+    # time stamps are on the old one; after that, every status passes the autopilot's
+    # age check again.
+    bad = [r for r in mock.received_status if not r.ok]
+    assert all(r.recv_us - rebooted["us"] <= 1_300_000 for r in bad), [
+        (r.recv_us - rebooted["us"], r.problems) for r in bad
+    ]
+    late = [r for r in mock.received_status if r.recv_us - rebooted["us"] > 1_300_000]
+    assert len(late) > 40 and all(r.ok for r in late)
+    assert report.score.decided > 20 and s.frames_balance
+
+
+def test_watchdog_is_not_pinged_while_the_loop_is_stuck(tmp_path: Path) -> None:
+    notifier = RecordingNotifier()
+    blocked = {}
+
+    async def go() -> SitlReport:
+        stop = asyncio.Event()
+
+        async def block() -> None:
+            await asyncio.sleep(2.0)
+            blocked["from"] = time.monotonic()
+            time.sleep(2.5)  # a stuck loop: what the watchdog is for
+            blocked["to"] = time.monotonic()
+
+        task = asyncio.create_task(block())
+        report = await run_sitl(
+            AppConfig(), duration_s=6.0, stop=stop, state_dir=str(tmp_path), notifier=notifier
+        )
+        await task
+        return report
+
+    report = asyncio.run(go())
+    pings = [t for t, k, _ in notifier.calls if k == "WATCHDOG"]
+    assert pings and not [t for t in pings if blocked["from"] < t < blocked["to"] - 0.01]
+    gaps = np.diff(pings)
+    assert gaps.max() >= 2.0  # the stall shows as a gap systemd would act on
+    assert report.summary.frames_balance
+
+
+def test_status_line_names_what_is_wrong(tmp_path: Path) -> None:
+    lines: list[str] = []
+    sitl(tmp_path, 3.0, on_status=lines.append)
+    assert lines and "fps" in lines[-1] and "latency" in lines[-1]
+    assert any("missing" in line or "inputs OK" in line for line in lines)
+    assert callable(_format_status)
+
+
+# -- the process: SIGTERM, systemd notify ----------------------------------------------------
+def test_run_under_a_fake_notify_socket_stops_gracefully_on_sigterm(tmp_path: Path) -> None:
+    sock_path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(sock_path))
+    sock.settimeout(0.2)
+    env = {
+        **os.environ,
+        "NOTIFY_SOCKET": str(sock_path),
+        "WATCHDOG_USEC": "2000000",
+        "TCM_COMPANION__DAEMON__STATE_DIR": str(tmp_path / "state"),
+    }
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tcm_companion",
+            "run",
+            "--config",
+            str(ROOT / "config.toml"),
+            "--no-status",
+            "--log-level",
+            "WARNING",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    got: list[str] = []
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline:
+            try:
+                got.append(sock.recv(4096).decode())
+            except TimeoutError:
+                pass
+            if sum("WATCHDOG=1" in g for g in got) >= 3:
+                break
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+        while True:
+            try:
+                got.append(sock.recv(4096).decode())
+            except (TimeoutError, BlockingIOError):
+                break
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        sock.close()
+    assert proc.returncode == 0, err
+    assert any(g.startswith("READY=1") for g in got)
+    assert any("STATUS=" in g for g in got) and any("STOPPING=1" in g for g in got)
+    assert "frames: captured" in out and "(balanced)" in out
+    params = json.loads((tmp_path / "state" / "params.json").read_text())
+    assert "TCM_THRESH" in json.dumps(params)

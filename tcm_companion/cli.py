@@ -209,6 +209,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.mavlink:
         print(run_mavlink_bench())
         return 0
+    if args.daemon:
+        from .service.daemon_bench import print_daemon_bench, run_daemon_bench
+
+        print_daemon_bench(run_daemon_bench(args.duration))
+        return 0
     print(
         run_bench(_config(args.config), args.resolutions or [(360, 220), (900, 550)], args.frames)
     )
@@ -322,6 +327,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--mavlink",
         action="store_true",
         help="instead: MAVLink encode cost and link latency (pty via socat, UDP)",
+    )
+    p.add_argument(
+        "--daemon",
+        action="store_true",
+        help="instead: the running service's latency, CPU and memory (own process, 25 Hz)",
+    )
+    p.add_argument(
+        "--duration", type=float, default=60.0, help="--daemon: seconds to run (default 60)"
     )
     p.set_defaults(func=cmd_bench)
 

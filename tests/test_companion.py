@@ -74,6 +74,8 @@ class Driver:
             if nan_attitude and isinstance(s, AttitudeSample):
                 self.companion.handle_events([TelemetryRejected("attitude", "NaN")], s.recv_us)
                 continue
+            # As the endpoint does when it receives telemetry: its clock fit.
+            self.endpoint.telemetry_clock.observe(s.time_boot_us, s.recv_us)
             self.companion.handle_events([TelemetryReceived(s)], s.recv_us)
 
     def run(self, first: int, last: int, **kw: Any) -> None:
@@ -254,3 +256,13 @@ def test_daemon_config_is_checked() -> None:
         DaemonConfig(camera_timeout_us=0)
     with pytest.raises(ValueError, match="attitude_wait_max_us"):
         DaemonConfig(attitude_lead_max_us=50_000, attitude_wait_max_us=10_000)
+
+
+def test_nothing_is_sent_before_the_autopilot_clock_is_known(flight: Any) -> None:
+    drv = Driver(*flight)
+    drv.run(0, 10, keep=lambda s: False)  # frames, but no telemetry at all
+    assert drv.statuses() == []
+    assert drv.companion.stats.frames_without_time_base == 10
+    drv.run(10, 40)  # telemetry arrives: statuses flow, with real boot times
+    st = drv.statuses()
+    assert st and all(m.time_boot_ms > 0 for m in st)

@@ -37,3 +37,26 @@ def tune_allocator() -> bool:
     mallopt.restype = ctypes.c_int
     ok = mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) == 1
     return mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES) == 1 and ok
+
+
+def trim_heap() -> bool:
+    """Give the heap's free memory back to the kernel (glibc ``malloc_trim(0)``).
+
+    With the raised trim threshold nothing is returned on its own, so memory that was
+    only needed at start-up — compiling a module without a ``.pyc`` (the generated MAVLink
+    dialect: ~70 MiB), building lookup tables — would stay resident. The daemon calls
+    this once it is running. False where there is no glibc.
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return False
+    try:
+        malloc_trim = ctypes.CDLL(name).malloc_trim
+    except (OSError, AttributeError):
+        return False
+    malloc_trim.argtypes = [ctypes.c_size_t]
+    malloc_trim.restype = ctypes.c_int
+    malloc_trim(0)
+    return True

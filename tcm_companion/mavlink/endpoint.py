@@ -483,6 +483,13 @@ class CompanionEndpoint:
             self.config.timesync_fast_interval_us if fast else self.config.timesync_interval_us
         )
 
+    def has_time_base(self, now_us: int) -> bool:
+        """Whether :meth:`boot_ms` maps companion times (TIMESYNC or the telemetry fit)."""
+        return (
+            self.timesync.synced
+            and self.timesync.age_us(now_us) < 10 * self.config.timesync_interval_us
+        ) or self.telemetry_clock.ready
+
     def boot_ms(self, companion_us: int, now_us: int) -> int:
         """Autopilot boot time (ms) of a companion-clock instant: TIMESYNC if fresh, else
         the telemetry clock fit, else 0."""

@@ -183,6 +183,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         summary = await daemon.run(stop)
         if printer is not None:
             printer.done()
+        if args.summary_json:
+            write_summary_json(args.summary_json, summary)
         lat = summary.latency_percentile_ms(99)
         print(
             f"stopped after {summary.duration_s:.1f} s: captured {summary.captured}, processed "
@@ -192,6 +194,39 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 0
 
     return _run_loop(main_flight)
+
+
+def write_summary_json(path: str, summary: Any) -> None:
+    """Latency percentiles, frame accounting and faults of a run, for tools and benches."""
+    import json
+
+    import numpy as np
+
+    doc = {
+        "duration_s": summary.duration_s,
+        "captured": summary.captured,
+        "processed": summary.processed,
+        "dropped": summary.dropped,
+        "failed": summary.failed,
+        "rejected": summary.rejected,
+        "frames_balance": summary.frames_balance,
+        "latency_p50_ms": summary.latency_percentile_ms(50),
+        "latency_p90_ms": summary.latency_percentile_ms(90),
+        "latency_p99_ms": summary.latency_percentile_ms(99),
+        "latency_max_ms": summary.latency_percentile_ms(100),
+        "faults": summary.faults,
+        "watchdog_pings": summary.watchdog_pings,
+        "watchdog_withheld": summary.watchdog_withheld,
+        "frames_waited_for_attitude": summary.stats.frames_waited,
+        "stages_ms": {
+            k: {
+                "p50": float(np.percentile(v, 50)) if v else None,
+                "p99": float(np.percentile(v, 99)) if v else None,
+            }
+            for k, v in summary.stage_ms.items()
+        },
+    }
+    Path(path).write_text(json.dumps(doc, indent=2))
 
 
 # -- sitl -----------------------------------------------------------------------------------
@@ -267,6 +302,9 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")
     p.add_argument(
         "--status-every", type=int, default=5, help="status line every N s when not a terminal"
+    )
+    p.add_argument(
+        "--summary-json", metavar="FILE", default=None, help="write the run's summary as JSON"
     )
     p.set_defaults(func=cmd_run)
 

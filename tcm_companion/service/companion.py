@@ -83,11 +83,20 @@ class DaemonConfig:
     # relative. "": $STATE_DIRECTORY (systemd's StateDirectory=), else
     # $XDG_STATE_HOME/tcm-companion, else ~/.local/state/tcm-companion.
     state_dir: str = ""
+    # OpenCV worker threads for the pipeline (0: OpenCV's default, one per core). One is
+    # faster here: frames are small, and extra threads fight the camera threads and
+    # the event loop for the cores (tcm-companion bench --daemon).
+    opencv_threads: int = 1
+    # Python's GIL switch interval while the daemon runs (default Python: 5000 µs): how
+    # long a camera thread with a new frame may wait for the loop thread to let go.
+    gil_switch_interval_us: int = 1000
 
     def __post_init__(self) -> None:
+        if self.opencv_threads < 0:
+            raise ValueError(f"opencv_threads must be >= 0, got {self.opencv_threads}")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, int) and value <= 0:
+            if f.name != "opencv_threads" and isinstance(value, int) and value <= 0:
                 raise ValueError(f"{f.name} must be > 0, got {value}")
         if self.attitude_wait_max_us < self.attitude_lead_max_us:
             raise ValueError("attitude_wait_max_us must be >= attitude_lead_max_us")
@@ -99,6 +108,7 @@ class CompanionStats:
     frames_dropped: int = 0  # superseded by a newer frame before processing
     frames_failed: int = 0  # the pipeline raised
     frames_waited: int = 0  # waited for the attitude after them
+    frames_without_time_base: int = 0  # processed before the autopilot's clock was known
     pipeline_rebuilds: int = 0
     objects_sent: int = 0
     objects_unknown_by_input: int = 0
@@ -254,6 +264,13 @@ class Companion:
             self.stats.objects_unknown_by_input += len(result.objects)
         cam.last_objects = result.objects
         cam.last_t_us = t_capture_us
+        if not self.endpoint.has_time_base(now_us):
+            # Neither TIMESYNC nor the telemetry has given us the autopilot's boot time
+            # yet: a time_boot_ms of 0 would read as ancient to the autopilot, and
+            # nothing is decided without its attitude anyway. Keep quiet until it has.
+            self.stats.frames_without_time_base += 1
+            self.stats.frames_processed += 1
+            return result
         self.endpoint.send_frame(result, now_us, camera_id)
         self.stats.frames_processed += 1
         self.stats.objects_sent += len(result.objects)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import sys
 import threading
 import time
 from collections import deque
@@ -35,11 +36,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 
 from ..config import AppConfig
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult
+from ..io.allocator import trim_heap
 from ..io.cameras.base import CameraStats, Frame, FrameSource
 from ..io.transports import Transport, open_transport
 from ..mavlink.endpoint import CompanionEndpoint, Event, ParamChanged, TelemetryReceived
@@ -103,6 +106,7 @@ class DaemonSummary:
     watchdog_pings: int
     watchdog_withheld: int
     faults: dict[str, int] = field(default_factory=dict)
+    stage_ms: dict[str, list[float]] = field(default_factory=dict)
 
     @property
     def frames_balance(self) -> bool:
@@ -177,6 +181,12 @@ class Daemon:
         self.readers: list[Any] = []
         self.latencies_ms: deque[float] = deque(maxlen=200_000)
         self._pending: list[Frame | None] = [None] * len(self.camera_inputs)
+        self._arrival_us: list[int] = [0] * len(self.camera_inputs)
+        # Where the capture-to-output time goes, per frame (ms): camera thread to loop,
+        # waiting in the slot (incl. for the attitude), the pipeline, the link write.
+        self.stage_ms: dict[str, deque[float]] = {
+            k: deque(maxlen=200_000) for k in ("handoff", "queue", "pipeline", "send")
+        }
         self._frame_event = asyncio.Event()
         self._telemetry_event = asyncio.Event()
         self._handoff_failures = 0
@@ -206,6 +216,7 @@ class Daemon:
         if self._pending[cid] is not None:
             self.companion.note_drop(now)  # the older frame is stale: never queue it
         self._pending[cid] = frame
+        self._arrival_us[cid] = now
         self._frame_event.set()
 
     def _on_camera_state(self, loop: asyncio.AbstractEventLoop) -> Callable[[str, str], None]:
@@ -261,15 +272,23 @@ class Daemon:
                     if frame is None:
                         continue
                 self._pending[cid] = None
+                arrived = self._arrival_us[cid]
                 now = self.clock_us()
                 self._processing_since_us = now
                 result = comp.process(cid, frame.image, frame.t_capture_us, now)
                 self._processing_since_us = None
+                done = self.clock_us()
                 await link.flush()
                 if result is not None:
-                    latency = self.clock_us() - frame.t_capture_us
+                    sent = self.clock_us()
+                    latency = sent - frame.t_capture_us
                     comp.record_latency(latency)
                     self.latencies_ms.append(latency / 1000.0)
+                    st = self.stage_ms
+                    st["handoff"].append((arrived - frame.t_capture_us) / 1000.0)
+                    st["queue"].append((now - arrived) / 1000.0)
+                    st["pipeline"].append((done - now) / 1000.0)
+                    st["send"].append((sent - done) / 1000.0)
                     if self.on_result is not None:
                         self.on_result(cid, result)
 
@@ -285,8 +304,14 @@ class Daemon:
     async def _health_loop(self) -> None:
         comp = self.companion
         assert comp is not None and self.link is not None
+        ticks = 0
         while True:
             await asyncio.sleep(self.health_interval_us / 1e6)
+            ticks += 1
+            if ticks in (1, 5):
+                # Start-up is over (imports, renderer or camera set-up, first frames):
+                # return what it used to the kernel, so RSS is the steady state.
+                trim_heap()
             now = self.clock_us()
             for name, problem in comp.tick(now):
                 if problem:
@@ -317,6 +342,12 @@ class Daemon:
         stop = stop if stop is not None else asyncio.Event()
         loop = asyncio.get_running_loop()
         t0 = self.clock_us()
+        if self.config.daemon.opencv_threads:
+            cv2.setNumThreads(self.config.daemon.opencv_threads)
+        # A camera thread that wakes with a frame needs the GIL; by default it may wait
+        # 5 ms for the loop thread to let go. A shorter switch interval bounds that wait
+        # (handoff p50 2.3 ms -> see docs/daemon.md for the measurement).
+        sys.setswitchinterval(self.config.daemon.gil_switch_interval_us / 1e6)
         async with contextlib.AsyncExitStack() as stack:
             # MAVLink: endpoint (persisted params, signing) and the transport.
             endpoint = self._endpoint
@@ -403,4 +434,5 @@ class Daemon:
             watchdog_pings=self.watchdog_pings,
             watchdog_withheld=self.watchdog_withheld,
             faults=dict(comp.stats.faults),
+            stage_ms={k: list(v) for k, v in self.stage_ms.items()},
         )

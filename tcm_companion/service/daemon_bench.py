@@ -70,7 +70,10 @@ def run_daemon_bench(
     frames_s: float = 20.0,
     out: Callable[[str], Any] = print,
     workdir: str | None = None,
+    extra_sets: tuple[str, ...] = (),
 ) -> dict[str, Any]:
+    """Run the daemon for ``duration_s`` and measure it; ``extra_sets`` are more
+    ``--set table.key=value`` overrides (for tuning studies)."""
     tmp = Path(workdir or tempfile.mkdtemp(prefix="tcm-bench-daemon-"))
     frames = tmp / "frames"
     if not any(frames.glob("*.png")):
@@ -91,6 +94,7 @@ def run_daemon_bench(
         "camera.loop=true",
         f'mavlink.url="udpout:127.0.0.1:{port}"',
         f'daemon.state_dir="{tmp / "state"}"',
+        *extra_sets,
     ]
     cmd = [py, "-m", "tcm_companion", "run", "--no-status", "--log-level", "WARNING",
            "--duration", str(duration_s), "--summary-json", str(summary_file)]  # fmt: skip

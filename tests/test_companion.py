@@ -266,3 +266,33 @@ def test_nothing_is_sent_before_the_autopilot_clock_is_known(flight: Any) -> Non
     drv.run(10, 40)  # telemetry arrives: statuses flow, with real boot times
     st = drv.statuses()
     assert st and all(m.time_boot_ms > 0 for m in st)
+
+
+def test_attitude_time_mapping_uses_timesync_and_removes_the_link_latency() -> None:
+    """Telemetry arriving 3 ms after it was stamped biases the envelope fit by 3 ms;
+    with a fresh, agreeing TIMESYNC offset the pipeline's clock has no bias."""
+    from tcm_companion.service.companion import TimesyncClock
+
+    offset = 5_000_000_000  # companion - autopilot boot (µs)
+    latency = 3_000
+    endpoint = CompanionEndpoint(now_us=offset)
+    clock = TimesyncClock(endpoint)
+    for k in range(200):
+        boot = 1_000_000 + 20_000 * k
+        clock.observe(boot, boot + offset + latency)
+    assert clock.offset_us == pytest.approx(offset + latency)  # no TIMESYNC yet: the fit
+    assert not clock.used_timesync
+    # TIMESYNC replies with a symmetric 1 ms each way: offset exactly recovered.
+    for k in range(5):
+        sent = offset + 1_000_000 + 1_000_000 * k
+        endpoint.timesync.add_reply(sent, (sent + 1_000 - offset) * 1000, sent + 2_000)
+    clock.observe(5_000_000, 5_000_000 + offset + latency)
+    assert clock.offset_us == pytest.approx(offset, abs=1)
+    assert clock.used_timesync
+    # A TIMESYNC offset that disagrees with the telemetry (a reboot seen by one side
+    # first) is not used.
+    for k in range(5):
+        sent = offset + 7_000_000 + 1_000_000 * k
+        endpoint.timesync.add_reply(sent, (sent + 1_000 - offset + 9_000_000) * 1000, sent + 2_000)
+    assert clock.offset_us == pytest.approx(offset + latency)
+    assert not clock.used_timesync

@@ -39,7 +39,7 @@ from ..core.camera import CameraModel
 from ..core.classify import unknown
 from ..core.egomotion import TranslationEstimate
 from ..core.pipeline import FrameResult, ObjectResult, Pipeline, PipelineConfig
-from ..core.telemetry import AttitudeSample, PositionSample
+from ..core.telemetry import AttitudeSample, ClockSync, PositionSample, TelemetryBuffer
 from ..mavlink import tcm_dialect as d
 from ..mavlink.endpoint import (
     AutopilotFound,
@@ -126,6 +126,49 @@ class _Camera:
     consecutive_errors: int = 0
 
 
+class TimesyncClock(ClockSync):
+    """The pipeline's autopilot-to-companion clock, on TIMESYNC while it is fresh.
+
+    :class:`~tcm_companion.core.telemetry.ClockSync` fits the lower envelope of
+    ``receive time - boot time`` of the telemetry, which leaves the link's smallest
+    one-way latency in the offset (a fraction of a ms on UDP; on a USB serial adapter
+    with its latency timer, ms). TIMESYNC measures the offset with the round trip and
+    halves it, which removes that bias. This clock uses TIMESYNC's offset when the
+    endpoint has a fresh one that agrees with the telemetry fit to within
+    ``agree_us`` (so an autopilot reboot, seen first by one of them, never mixes two boot
+    clocks), and the telemetry fit otherwise.
+    """
+
+    def __init__(
+        self, endpoint: CompanionEndpoint, max_age_us: int = 10_000_000, agree_us: int = 50_000
+    ) -> None:
+        super().__init__()
+        self.endpoint = endpoint
+        self.max_age_us = max_age_us
+        self.agree_us = agree_us
+        self._last_recv_us = 0
+        self.used_timesync = False
+
+    def observe(self, boot_us: int, recv_us: int) -> None:
+        super().observe(boot_us, recv_us)
+        self._last_recv_us = max(self._last_recv_us, int(recv_us))
+
+    @property
+    def offset_us(self) -> float:
+        fit = super().offset_us
+        ts = self.endpoint.timesync
+        if (
+            ts.synced
+            and ts.age_us(self._last_recv_us) < self.max_age_us
+            and math.isfinite(fit)
+            and abs(ts.offset_us - fit) < self.agree_us
+        ):
+            self.used_timesync = True
+            return float(ts.offset_us)
+        self.used_timesync = False
+        return fit
+
+
 def mark_unknown(result: FrameResult, reason: str) -> FrameResult:
     """``result`` with every object's state ``unknown`` for ``reason``."""
     objs = tuple(
@@ -163,6 +206,9 @@ class Companion:
             _Camera(i, names[i], cam, Pipeline(cam, self.pipeline_config))
             for i, cam in enumerate(cameras)
         ]
+        for c in self.cameras:
+            # Attitude at each frame's capture time through the TIMESYNC mapping.
+            c.pipeline.telemetry = TelemetryBuffer(clock=TimesyncClock(endpoint))
         specs = [InputSpec(c.name, 25.0, config.camera_timeout_us) for c in self.cameras]
         ecfg = endpoint.config
         specs.append(InputSpec("attitude", ecfg.attitude_rate_hz, config.attitude_timeout_us))

@@ -135,28 +135,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     printer = _StatusPrinter(every=args.status_every) if not args.no_status else None
 
     if config.camera.source.source == "sim":
-
-        async def main_sim() -> int:
-            from .sitl import run_sitl
-
-            stop = asyncio.Event()
-            _install_signals(stop)
-            log.info("camera source is the simulator: flying the mock autopilot (SITL)")
-            report = await run_sitl(
-                config,
-                camera_model=config.camera.model,
-                duration_s=args.duration,
-                stop=stop,
-                notifier=notifier,
-                on_status=printer,
-                state_dir=str(state),
-            )
-            if printer is not None:
-                printer.done()
-            print("\n".join(report.lines()))
-            return 0 if report.ok else 1
-
-        return _run_loop(main_sim)
+        log.info("camera source is the simulator: flying the mock autopilot (SITL)")
+        return _run_sitl_until(
+            config, args.duration, printer, notifier=notifier, state_dir=str(state)
+        )
 
     async def main_flight() -> int:
         from ..io.cameras.base import CameraError
@@ -237,7 +219,16 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
-    printer = _StatusPrinter(every=args.status_every)
+    return _run_sitl_until(config, args.duration, _StatusPrinter(every=args.status_every))
+
+
+def _run_sitl_until(
+    config: AppConfig,
+    duration_s: float | None,
+    printer: _StatusPrinter | None,
+    **kwargs: Any,
+) -> int:
+    """SITL on uvloop until ``duration_s`` or SIGINT/SIGTERM; prints the report."""
 
     async def main() -> int:
         from .sitl import run_sitl
@@ -247,11 +238,13 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         report = await run_sitl(
             config,
             camera_model=config.camera.model,
-            duration_s=args.duration,
+            duration_s=duration_s,
             stop=stop,
             on_status=printer,
+            **kwargs,
         )
-        printer.done()
+        if printer is not None:
+            printer.done()
         print("\n".join(report.lines()))
         return 0 if report.ok else 1
 

@@ -49,11 +49,44 @@ def _progress(total: int, desc: str, enabled: bool) -> Any:
 
 
 # -- replay ------------------------------------------------------------------------------
+def _is_log(path: str) -> bool:
+    p = Path(path)
+    return p.suffix == ".mcap" or (p.is_dir() and any(p.glob("tcm-*.mcap")))
+
+
+def cmd_replay_log(args: argparse.Namespace) -> int:
+    """A flight log: recompute every processed frame and compare with what was logged."""
+    from .io.results import ResultsWriter
+    from .replay_log import compare, replay_log
+
+    rows = mismatched = frames = 0
+    diffs: list[str] = []
+    with open(args.results, "w", newline="") as fh:
+        writer = ResultsWriter(fh)
+        for frame in replay_log(args.scenario, args.camera_id):
+            writer.write(frame.result)
+            frames += 1
+            d = compare(frame)
+            if d:
+                mismatched += 1
+                diffs.extend(d)
+        rows = writer.rows
+    print(
+        f"{args.scenario}: {frames} frames replayed, {rows} rows -> {args.results}; "
+        f"{frames - mismatched} identical to the flight, {mismatched} differ"
+    )
+    for line in diffs[:20]:
+        print(f"  {line}")
+    return 1 if (args.check and mismatched) else 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from .io.results import ResultsWriter
     from .io.scenario import load_scenario
     from .replay import run_replay, with_method
 
+    if _is_log(args.scenario):
+        return cmd_replay_log(args)
     config = with_method(_config(args.config), args.method, bsm=args.method == "bsm")
     scenario = load_scenario(args.scenario)
     for w in scenario.warnings:
@@ -220,6 +253,38 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- logs ----------------------------------------------------------------------------------
+def cmd_export(args: argparse.Namespace) -> int:
+    from .logtools.convert import log_to_scenario
+
+    log_to_scenario(args.log, args.scenario, camera_id=args.camera_id)
+    print(f"{args.log} -> {args.scenario}")
+    return 0
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from .logtools.convert import scenario_to_log
+
+    scenario_to_log(args.scenario, args.log, image_format=args.image_format, results=args.results)
+    print(f"{args.scenario} -> {args.log}")
+    return 0
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from .logtools.plot import plot_log, plot_scenario
+
+    paths = (
+        plot_log(args.source, args.out)
+        if _is_log(args.source)
+        else plot_scenario(args.source, args.out)
+    )
+    for p in paths:
+        print(p)
+    for name, why in getattr(paths, "skipped", {}).items():
+        print(f"skipped {name}: {why}", file=sys.stderr)
+    return 0
+
+
 # -- sim -----------------------------------------------------------------------------------
 def _camera_arg(args: argparse.Namespace) -> Any:
     if args.camera is None:
@@ -282,9 +347,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/demo", help="folder for plots (default out/demo)")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("replay", help="run a tcm-scenario/1 directory through the pipeline")
+    p = sub.add_parser(
+        "replay", help="run a tcm-scenario/1 directory or a flight log (.mcap) through the core"
+    )
     common(p)
-    p.add_argument("scenario")
+    p.add_argument("scenario", help="scenario directory, or a flight log file / log directory")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="flight log: exit 1 unless every replayed frame equals the logged one",
+    )
+    p.add_argument("--camera-id", type=int, default=0, help="flight log: which camera")
     p.add_argument("--results", required=True, help="results CSV to write")
     p.add_argument(
         "--method", choices=METHODS, default=None, help="decision method (default: config)"
@@ -351,6 +424,28 @@ def build_parser() -> argparse.ArgumentParser:
 
     service_parsers(sub)
 
+    p = sub.add_parser("export", help="flight log -> tcm-scenario/1 (frames + .tlog)")
+    p.add_argument("log", help="flight log file or directory")
+    p.add_argument("--scenario", required=True, metavar="DIR", help="scenario directory to write")
+    p.add_argument("--camera-id", type=int, default=0)
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("import", help="tcm-scenario/1 -> flight log (.mcap)")
+    p.add_argument("scenario", help="scenario directory")
+    p.add_argument("--log", required=True, metavar="FILE", help="MCAP file to write")
+    p.add_argument("--image-format", choices=("png", "jpeg"), default="png")
+    p.add_argument(
+        "--results",
+        action="store_true",
+        help="also replay the scenario and log /tcm/result (for plots and the Foxglove layout)",
+    )
+    p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("plot", help="PNG plots of a flight log or a scenario")
+    p.add_argument("source", help="flight log (file or directory) or scenario directory")
+    p.add_argument("--out", default="out/plots", help="folder for the PNGs (default out/plots)")
+    p.set_defaults(func=cmd_plot)
+
     p = sub.add_parser("sim", help="the built-in simulator")
     ssub = p.add_subparsers(dest="sim_command", required=True)
     e = ssub.add_parser("export", help="write a simulated scenario as a tcm-scenario/1 directory")
@@ -378,8 +473,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except (ValueError, OSError) as exc:
         from .io.scenario import ScenarioError
+        from .logtools.convert import LogConversionError
+        from .replay_log import LogReplayError
 
-        if isinstance(exc, ScenarioError | OSError):
+        if isinstance(exc, ScenarioError | OSError | LogConversionError | LogReplayError):
             print(f"error: {exc}", file=sys.stderr)
             return 2
         raise

@@ -21,6 +21,7 @@ from typing import Any
 from .core.camera import _KEYS, CameraModel, CameraModelError, Equirectangular, camera_from_dict
 from .core.pipeline import PipelineConfig
 from .io.cameras.settings import CameraSettings
+from .io.flightlog import LoggingConfig
 from .mavlink.setup import MavlinkSettings
 from .service.companion import DaemonConfig
 
@@ -117,6 +118,7 @@ class AppConfig:
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
 
 
 def _describe(tp: Any) -> str:
@@ -304,7 +306,7 @@ def load_config(
         raise ConfigError(msg) from None
 
 
-_TABLES = ("pipeline", "replay", "mavlink", "daemon", "sim", "camera")
+_TABLES = ("pipeline", "replay", "mavlink", "daemon", "sim", "camera", "logging")
 
 
 def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
@@ -321,6 +323,7 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
                 ("mavlink", MavlinkSettings),
                 ("daemon", DaemonConfig),
                 ("sim", SimConfig),
+                ("logging", LoggingConfig),
             )
         }
         camera = camera_config_from_table(doc.get("camera", {}), f"{where}: [camera]")
@@ -333,3 +336,27 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
             )
         raise ConfigError(msg) from None
     return AppConfig(pipeline=pipeline, camera=camera, **tables)
+
+
+def _plain(value: Any) -> Any:
+    """Dataclasses, tuples and camera models as TOML-writable values."""
+    if hasattr(value, "to_dict") and callable(value.to_dict):
+        return _plain(value.to_dict())
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init}
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    return value
+
+
+def config_to_toml(config: AppConfig) -> str:
+    """The configuration in force, as TOML (the camera's model and source in one table)."""
+    import tomli_w
+
+    doc = _plain(config)
+    cam = doc.pop("camera")
+    camera = {"name": cam["name"], **cam["model"], **cam["source"]}
+    doc["camera"] = camera
+    return tomli_w.dumps(doc)

@@ -1,5 +1,6 @@
 """Which daemon settings keep capture-to-MAVLink latency and CPU low (evidence for
-config.toml's [daemon] opencv_threads, gil_switch_interval_us and attitude_lead_max_us).
+config.toml's [daemon] opencv_threads, gil_switch_interval_us and attitude_lead_max_us),
+and what the flight log costs ([logging]: on with JPEG by default, off, PNG).
 
 Each variant runs ``tcm-companion run`` as its own process for DURATION seconds at 25 Hz
 (frames from disk, the mock autopilot in another process over UDP; see
@@ -21,6 +22,8 @@ VARIANTS: list[tuple[str, tuple[str, ...]]] = [
     ("OpenCV's default threads", ("daemon.opencv_threads=0",)),
     ("Python's default GIL switch (5 ms)", ("daemon.gil_switch_interval_us=5000",)),
     ("always wait for the attitude after the frame", ("daemon.attitude_lead_max_us=1",)),
+    ("flight log off", ("logging.enabled=false",)),
+    ("flight log with lossless PNG frames", ('logging.image_format="png"',)),
 ]
 
 
@@ -37,7 +40,8 @@ def main() -> None:
         print(
             f"{name:<62} {r['latency_p50_ms']:6.2f} {r['latency_p90_ms']:6.2f} "
             f"{r['latency_p99_ms']:6.2f} {pipe:8.2f} {r['cpu_pct_of_one_core']:6.1f} "
-            f"{r['rss_mib_max']:8.1f} {r['frames_waited_for_attitude']:6d}",
+            f"{r['rss_mib_max']:8.1f} {r['frames_waited_for_attitude']:6d}"
+            f" {r['log_gb_per_hour']:8.2f}",
             flush=True,
         )
 

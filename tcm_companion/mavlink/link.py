@@ -34,11 +34,15 @@ class CompanionLink:
         endpoint: CompanionEndpoint,
         on_event: Callable[[Event], None] | None = None,
         clock_us: Callable[[], int] = monotonic_us,
+        on_bytes: Callable[[str, int, bytes], object] | None = None,
     ) -> None:
         self.transport = transport
         self.endpoint = endpoint
         self.on_event = on_event
         self.clock_us = clock_us
+        # ("in" | "out", time µs, bytes) for every chunk received or handed to the
+        # transport: the flight log records the link exactly (a .tlog can be rebuilt).
+        self.on_bytes = on_bytes
         self._wake = asyncio.Event()
         self._stopping = False
         self.send_errors = 0
@@ -73,6 +77,8 @@ class CompanionLink:
         data = self.endpoint.data_to_send()
         if not data:
             return
+        if self.on_bytes is not None:
+            self.on_bytes("out", self.now_us(), data)
         try:
             await self.transport.send(data)
         except (TransportTimeout, TransportClosed):
@@ -92,7 +98,10 @@ class CompanionLink:
             except TransportError:
                 await asyncio.sleep(0.1)
                 continue
-            self._dispatch(self.endpoint.receive_data(data, self.now_us()))
+            now = self.now_us()
+            if self.on_bytes is not None:
+                self.on_bytes("in", now, data)
+            self._dispatch(self.endpoint.receive_data(data, now))
             self._wake.set()
 
     async def _timer(self) -> None:

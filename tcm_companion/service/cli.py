@@ -17,11 +17,12 @@ import logging
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
-from ..config import AppConfig, ConfigError, load_config
+from ..config import AppConfig, ConfigError, config_to_toml, load_config
 
 log = logging.getLogger("tcm_companion")
 
@@ -136,8 +137,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     if config.camera.source.source == "sim":
         log.info("camera source is the simulator: flying the mock autopilot (SITL)")
+        from .logsetup import log_directory
+
+        log_dir = str(log_directory(config, state)) if config.logging.enabled else None
         return _run_sitl_until(
-            config, args.duration, printer, notifier=notifier, state_dir=str(state)
+            config, args.duration, printer, notifier=notifier, state_dir=str(state), log_dir=log_dir
         )
 
     async def main_flight() -> int:
@@ -155,14 +159,45 @@ def cmd_run(args: argparse.Namespace) -> int:
         _install_signals(stop)
         if args.duration is not None:
             asyncio.get_running_loop().call_later(args.duration, stop.set)
+        from ..io.persist import SigningKeyError
+        from ..mavlink.setup import make_endpoint, persist
+
+        cameras = [CameraInput(cam.name, cam.model, source)]
+        try:
+            endpoint, warnings = make_endpoint(config.mavlink, time.monotonic_ns() // 1000)
+        except SigningKeyError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        for w in warnings:
+            log.warning("%s", w)
+        writer = log_state = None
+        if config.logging.enabled:
+            from .logsetup import log_directory, start_flight_log
+
+            log_dir = log_directory(config, state)
+            # The parameters in force at start (persisted ones included): replay needs them.
+            writer, log_state = start_flight_log(
+                config, log_dir, cameras, dict(endpoint.params.values)
+            )
+            log.info("flight log in %s", log_dir)
         daemon = Daemon(
             config,
-            [CameraInput(cam.name, cam.model, source)],
+            cameras,
+            endpoint=endpoint,
+            persist_params=True,
             notifier=notifier,
             watchdog_interval_us=wd_us,
             on_status=printer,
+            flight_log=writer,
+            log_state=log_state,
         )
-        summary = await daemon.run(stop)
+        try:
+            summary = await daemon.run(stop)
+        finally:
+            if writer is not None:
+                writer.stop()
+            with contextlib.suppress(OSError):
+                persist(config.mavlink, endpoint)
         if printer is not None:
             printer.done()
         if args.summary_json:
@@ -219,7 +254,9 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
-    return _run_sitl_until(config, args.duration, _StatusPrinter(every=args.status_every))
+    return _run_sitl_until(
+        config, args.duration, _StatusPrinter(every=args.status_every), log_dir=args.log
+    )
 
 
 def _run_sitl_until(
@@ -252,30 +289,6 @@ def _run_sitl_until(
 
 
 # -- config check ---------------------------------------------------------------------------
-def _plain(value: Any) -> Any:
-    """Dataclasses, tuples and camera models as TOML-writable values."""
-    if hasattr(value, "to_dict") and callable(value.to_dict):
-        return _plain(value.to_dict())
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init}
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, tuple | list):
-        return [_plain(v) for v in value]
-    return value
-
-
-def effective_config_toml(config: AppConfig) -> str:
-    """The configuration in force, as TOML (the camera's model and source in one table)."""
-    import tomli_w
-
-    doc = _plain(config)
-    cam = doc.pop("camera")
-    camera = {"name": cam["name"], **cam["model"], **cam["source"]}
-    doc["camera"] = camera
-    return tomli_w.dumps(doc)
-
-
 def cmd_config_check(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.file, environ=os.environ, sets=list(args.set))
@@ -283,7 +296,7 @@ def cmd_config_check(args: argparse.Namespace) -> int:
         print(f"config error: {exc}", file=sys.stderr)
         return 2
     print(f"# {args.file}: OK. Effective configuration (CLI > environment > file > defaults):")
-    print(effective_config_toml(config))
+    print(config_to_toml(config))
     return 0
 
 
@@ -309,6 +322,7 @@ def add_parsers(sub: Any) -> None:
     add_config_arguments(p)
     p.add_argument("--scenario", type=str.upper, choices=SCENARIO_NAMES, default=None)
     p.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument(
         "--status-every", type=int, default=5, help="status line every N s when not a terminal"
     )

@@ -221,6 +221,8 @@ class Companion:
         self._frame_times: deque[int] = deque(maxlen=64)
         self._last_translation: TranslationEstimate | None = None
         self._last_drop_us: int | None = None
+        self.last_override = ""  # why the last processed frame's objects were made unknown
+        self.log_state = d.TCM_LOG_STATE_OFF  # the flight log's state, set by the daemon
 
     # -- inputs ---------------------------------------------------------------------------
     def handle_events(self, events: Sequence[Event], now_us: int) -> None:
@@ -305,8 +307,10 @@ class Companion:
             return None
         cam.consecutive_errors = 0
         reason = self._blocking_input(now_us)
+        self.last_override = ""
         if reason and result.objects:
             result = mark_unknown(result, reason)
+            self.last_override = reason
             self.stats.objects_unknown_by_input += len(result.objects)
         cam.last_objects = result.objects
         cam.last_t_us = t_capture_us
@@ -324,6 +328,13 @@ class Companion:
         if result.translation is not None:
             self._last_translation = result.translation
         return result
+
+    def clock_offset_us(self, camera_id: int) -> float:
+        """The autopilot-to-companion offset (µs) the camera's pipeline uses now."""
+        return float(self.cameras[camera_id].pipeline.telemetry.clock.offset_us)
+
+    def threshold(self) -> float:
+        return float(self.pipeline_config.classifier.tcm_threshold)
 
     def record_latency(self, latency_us: int) -> None:
         """Capture → handed to the link, for the health message."""
@@ -374,6 +385,8 @@ class Companion:
             flags |= d.TCM_HEALTH_TIMESYNC_LOST
         if self._last_drop_us is not None and now_us - self._last_drop_us < 2_000_000:
             flags |= d.TCM_HEALTH_OVERLOADED
+        if self.log_state == d.TCM_LOG_STATE_FAULT:
+            flags |= d.TCM_HEALTH_LOG_FAULT
         return flags
 
     def note_drop(self, now_us: int) -> None:
@@ -405,4 +418,5 @@ class Companion:
             egomotion_quality_pct=quality,
             health_flags=self.health_flags(now_us),
             objects=sum(len(c.last_objects) for c in self.cameras),
+            log_state=self.log_state,
         )

@@ -66,6 +66,18 @@ class NotifierLike(Protocol):
     def stopping(self) -> Any: ...
 
 
+class FlightLogLike(Protocol):
+    """What the daemon needs of :class:`tcm_companion.io.flightlog.FlightLogWriter`:
+    non-blocking producers (False = dropped and counted by the writer)."""
+
+    def log_frame(self, camera_id: int, t_capture_us: int, image: np.ndarray) -> bool: ...
+    def log_annotations(
+        self, camera_id: int, t_capture_us: int, circles: list[tuple[float, float, float, str]]
+    ) -> bool: ...
+    def log_mavlink(self, direction: Any, t_us: int, data: bytes) -> bool: ...
+    def log_json(self, topic: str, t_us: int, doc: dict[str, Any]) -> bool: ...
+
+
 class _NoNotifier:
     def ready(self, status: str = "") -> None:
         pass
@@ -161,6 +173,9 @@ class Daemon:
         clock_us: Callable[[], int] = monotonic_us,
         on_result: Callable[[int, FrameResult], None] | None = None,
         on_status: Callable[[str], None] | None = None,
+        flight_log: FlightLogLike | None = None,
+        log_state: Callable[[], tuple[int, dict[str, Any]]] | None = None,
+        persist_params: bool = False,
     ) -> None:
         if not cameras:
             raise ValueError("the daemon needs at least one camera")
@@ -172,6 +187,12 @@ class Daemon:
         self.clock_us = clock_us
         self.on_result = on_result
         self.on_status = on_status
+        self.flight_log = flight_log
+        # Write parameter changes to config.mavlink's files at once (always when the
+        # daemon made the endpoint from the configuration itself).
+        self._persist_params = persist_params
+        # () -> (TCM_LOG_STATE, stats for the health log); the writer's, when logging.
+        self.log_state = log_state
         interval = config.daemon.health_interval_us
         if watchdog_interval_us is not None:
             interval = min(interval, watchdog_interval_us)
@@ -217,6 +238,9 @@ class Daemon:
             self.companion.note_drop(now)  # the older frame is stale: never queue it
         self._pending[cid] = frame
         self._arrival_us[cid] = now
+        if self.flight_log is not None:
+            # Every delivered frame, processed or not: the log shows what the camera saw.
+            self.flight_log.log_frame(cid, frame.t_capture_us, frame.image)
         self._frame_event.set()
 
     def _on_camera_state(self, loop: asyncio.AbstractEventLoop) -> Callable[[str, str], None]:
@@ -238,8 +262,10 @@ class Daemon:
         if isinstance(ev, TelemetryReceived):
             self._telemetry_event.set()
         elif isinstance(ev, ParamChanged):
+            if self.flight_log is not None:
+                self.flight_log.log_json("/tcm/param", now, {"name": ev.name, "value": ev.value})
             with contextlib.suppress(OSError):
-                if self._endpoint_from_config:
+                if self._persist_params:
                     persist(self.config.mavlink, self.companion.endpoint)
 
     # -- tasks -------------------------------------------------------------------------------
@@ -278,6 +304,11 @@ class Daemon:
                 result = comp.process(cid, frame.image, frame.t_capture_us, now)
                 self._processing_since_us = None
                 done = self.clock_us()
+                if result is not None and self.flight_log is not None:
+                    # Logged before anything else can run (the write below yields to the
+                    # loop): what the pipeline used — the clock offset, the telemetry up to
+                    # here — is then exactly what replay sees before this record.
+                    self._log_result(cid, result, now, done - frame.t_capture_us)
                 await link.flush()
                 if result is not None:
                     sent = self.clock_us()
@@ -291,6 +322,27 @@ class Daemon:
                     st["send"].append((sent - done) / 1000.0)
                     if self.on_result is not None:
                         self.on_result(cid, result)
+
+    def _log_result(
+        self, cid: int, result: FrameResult, t_process_us: int, latency_us: int
+    ) -> None:
+        from .logdocs import annotation_circles, result_doc
+
+        comp = self.companion
+        assert comp is not None and self.flight_log is not None
+        doc = result_doc(
+            cid,
+            result,
+            threshold=comp.threshold(),
+            t_process_us=t_process_us,
+            override=comp.last_override,
+            clock_offset_us=comp.clock_offset_us(cid),
+            latency_ms=latency_us / 1000.0,
+            object_radius_m=comp.endpoint.params.values["TCM_OBJ_RADIUS"],
+        )
+        self.flight_log.log_json("/tcm/result", t_process_us, doc)
+        model = self.camera_inputs[cid].model
+        self.flight_log.log_annotations(cid, result.t_us, annotation_circles(result, model))
 
     def _loop_healthy(self) -> tuple[bool, str]:
         for task in self._tasks:
@@ -313,11 +365,23 @@ class Daemon:
                 # return what it used to the kernel, so RSS is the steady state.
                 trim_heap()
             now = self.clock_us()
+            if self.log_state is not None:
+                comp.log_state, log_stats = self.log_state()
             for name, problem in comp.tick(now):
                 if problem:
                     log.warning("input %s: %s", name, problem)
                 else:
                     log.info("input %s: OK", name)
+                if self.flight_log is not None:
+                    self.flight_log.log_json(
+                        "/tcm/event",
+                        now,
+                        {
+                            "severity": "warning" if problem else "info",
+                            "input": name,
+                            "text": problem or f"{name} OK",
+                        },
+                    )
             self.link.wake()
             healthy, why = self._loop_healthy()
             if healthy:
@@ -328,13 +392,28 @@ class Daemon:
                 log.error("not pinging the watchdog: %s", why)
             line = _format_status(comp, now, list(comp.latencies_ms))
             self._last_status = line
+            if self.flight_log is not None:
+                rep = comp.health_report(now)
+                st = comp.inputs.status(now)
+                self.flight_log.log_json(
+                    "/tcm/health",
+                    now,
+                    {
+                        "frame_rate_hz": rep.frame_rate_hz,
+                        "latency_ms": rep.latency_ms,
+                        "frames_dropped": rep.frames_dropped,
+                        "health_flags": rep.health_flags,
+                        "egomotion_quality_pct": rep.egomotion_quality_pct,
+                        "inputs": {k: v.problem for k, v in st.items()},
+                        "status": line,
+                        "log": log_stats if self.log_state is not None else {},
+                    },
+                )
             self.notifier.status(line)
             if self.on_status is not None:
                 self.on_status(line)
 
     # -- the whole run -------------------------------------------------------------------------
-    _endpoint_from_config = False
-
     async def run(self, stop: asyncio.Event | None = None) -> DaemonSummary:
         """Run until ``stop`` is set (or a fatal error); returns the run's summary."""
         from ..io.cameras.reader import CameraReader
@@ -353,7 +432,7 @@ class Daemon:
             endpoint = self._endpoint
             if endpoint is None:
                 endpoint, warnings = make_endpoint(self.config.mavlink, t0)
-                self._endpoint_from_config = True
+                self._persist_params = True
                 for w in warnings:
                     log.warning("%s", w)
                 stack.callback(persist, self.config.mavlink, endpoint)
@@ -370,7 +449,12 @@ class Daemon:
                 self.config.daemon,
                 [c.name for c in self.camera_inputs],
             )
-            self.link = CompanionLink(transport, endpoint, self._on_event, self.clock_us)
+            on_bytes: Callable[[str, int, bytes], object] | None = None
+            if self.flight_log is not None:
+                on_bytes = self.flight_log.log_mavlink
+            self.link = CompanionLink(
+                transport, endpoint, self._on_event, self.clock_us, on_bytes=on_bytes
+            )
 
             # Cameras: one reader thread each; stopped (joined) on the way out.
             on_frame = self._make_on_frame(loop)

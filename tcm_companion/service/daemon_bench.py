@@ -128,6 +128,11 @@ def run_daemon_bench(
     if daemon.returncode != 0 or not summary_file.exists():
         raise RuntimeError(f"daemon failed (exit {daemon.returncode}):\n{stderr[-2000:]}")
     summary = json.loads(summary_file.read_text())
+    logs = tmp / "state" / "logs"
+    log_bytes = sum(f.stat().st_size for f in logs.glob("*.mcap")) if logs.is_dir() else 0
+    if logs.is_dir():  # each run starts without the previous run's logs
+        for f in logs.glob("*.mcap"):
+            f.unlink()
     # CPU over the steady part: from 5 s in (start-up: imports, first frames) to the end.
     steady = [s for s in samples if s[0] >= 5.0]
     cpu_pct = (
@@ -144,6 +149,8 @@ def run_daemon_bench(
         "rss_mib_middle": rss[n // 2] if rss else float("nan"),
         "rss_mib_end": rss[-1] if rss else float("nan"),
         "rss_mib_max": max(rss) if rss else float("nan"),
+        "log_bytes": log_bytes,
+        "log_gb_per_hour": log_bytes / 1e9 * 3600.0 / max(duration_s, 1e-9),
         **summary,
     }
     return result
@@ -159,6 +166,10 @@ def print_daemon_bench(result: dict[str, Any], out: Callable[[str], Any] = print
         f"  p99 {r['latency_p99_ms']:.2f}  max {r['latency_max_ms']:.2f}   (target p99 <= 10)"
     )
     out(f"  CPU: {r['cpu_pct_of_one_core']:.1f}% of one core   (target <= 25%)")
+    out(
+        f"  flight log: {r['log_bytes'] / 1e6:.1f} MB in {r['duration_s']:.0f} s"
+        f" = {r['log_gb_per_hour']:.2f} GB/h   (target <= 1 GB/h)"
+    )
     out(
         f"  RSS (MiB): start {r['rss_mib_start']:.1f}, middle {r['rss_mib_middle']:.1f}, end "
         f"{r['rss_mib_end']:.1f}, max {r['rss_mib_max']:.1f}   (target <= 200, flat)"

@@ -34,10 +34,12 @@ from ..core.camera import CameraModel
 from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult
 from ..io.transports import Transport, open_transport
+from ..mavlink import tcm_dialect as d
 from ..mavlink.setup import make_endpoint, persist, resolve_state_paths
 from ..sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
 from ..sim.mock_autopilot_run import run_mock_autopilot
 from .daemon import CameraInput, Daemon, DaemonSummary, NotifierLike
+from .logsetup import start_flight_log
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +77,7 @@ class SitlReport:
     mock_status_problems: int
     mock_problem_kinds: dict[str, int]
     failures: list[str]
+    log: Any = None  # the flight log's final stats, when logging
 
     @property
     def ok(self) -> bool:
@@ -101,6 +104,13 @@ class SitlReport:
             f"  faults: {s.faults or 'none'}; watchdog pings {s.watchdog_pings},"
             f" withheld {s.watchdog_withheld}",
         ]
+        if self.log is not None:
+            lg = self.log
+            out.append(
+                f"  flight log: {lg.frames_logged} frames logged + {lg.frames_dropped_queue}"
+                f" dropped (queue) + {lg.frames_dropped_disk} (disk), {lg.bytes_written / 1e6:.1f} MB"
+                f" in {len(lg.files)} file(s): {', '.join(str(f) for f in lg.files[-2:])}"
+            )
         if self.failures:
             out.append("  FAILED: " + "; ".join(self.failures))
         return out
@@ -167,12 +177,14 @@ async def run_sitl(
     mock: MockAutopilot | None = None,
     camera_factory: Callable[[MockAutopilot, CameraModel], Any] | None = None,
     links: tuple[Transport, Transport] | None = None,
+    log_dir: str | None = None,
 ) -> SitlReport:
     """Fly ``config.sim.scenario`` for ``duration_s`` (None: until ``stop``).
 
     Tests may pass their own ``mock`` (to reboot it mid-flight), ``camera_factory``
     (to make the camera fail), and ``links`` — ``(mock side, daemon side)``, opened — in
-    place of the loopback UDP pair (to cut the link).
+    place of the loopback UDP pair (to cut the link). ``log_dir``: write the flight log
+    there (``[logging]`` settings).
     """
     from ..io.cameras.sim import SimulatedCamera
 
@@ -200,7 +212,9 @@ async def run_sitl(
         if camera_factory is not None:
             source = camera_factory(mock, model)
         else:
-            source = SimulatedCamera.for_mock(model, mock, seed=sim.seed)
+            source = SimulatedCamera.for_mock(
+                model, mock, noise_dn=config.camera.source.sim_noise_dn
+            )
         cameras = [CameraInput("camera0", model, source)]
 
     own_state = state_dir is None and not config.daemon.state_dir
@@ -219,6 +233,19 @@ async def run_sitl(
     endpoint, warnings = make_endpoint(settings, now_us)
     for w in warnings:
         log.warning("%s", w)
+    writer = None
+    log_state = None
+    if log_dir is not None and config.logging.enabled:
+        loop = asyncio.get_running_loop()
+
+        def on_log_event(severity: str, text: str) -> None:  # writer thread
+            sev = d.MAV_SEVERITY_WARNING if severity != "info" else d.MAV_SEVERITY_INFO
+            t = time.monotonic_ns() // 1000
+            loop.call_soon_threadsafe(endpoint.statustext, sev, f"TCM: {text}", t)
+
+        writer, log_state = start_flight_log(
+            config, Path(log_dir), cameras, dict(endpoint.params.values), on_log_event
+        )
     daemon = Daemon(
         replace(config, mavlink=settings),
         cameras,
@@ -227,6 +254,8 @@ async def run_sitl(
         notifier=notifier,
         on_result=scorer,
         on_status=on_status,
+        flight_log=writer,
+        log_state=log_state,
     )
     mock_stop = asyncio.Event()
     try:
@@ -245,6 +274,8 @@ async def run_sitl(
             summary = await daemon.run(stop)
             persist(settings, endpoint)
         finally:
+            if writer is not None:
+                writer.stop()
             if timer is not None:
                 timer.cancel()
             mock_stop.set()
@@ -274,6 +305,11 @@ async def run_sitl(
         failures.append("the autopilot received no TCM_OBJECT_STATUS")
     if problems:
         failures.append(f"{len(problems)} status messages failed the autopilot's checks")
+    if writer is not None:
+        lg = writer.stats
+        delivered = sum(c.delivered for c in summary.camera_stats.values())
+        if lg.frames_logged + lg.frames_dropped_queue + lg.frames_dropped_disk != delivered:
+            failures.append("flight log: frames logged + dropped != frames delivered")
     if summary.watchdog_withheld:
         failures.append(f"watchdog withheld {summary.watchdog_withheld} times")
     return SitlReport(
@@ -285,4 +321,5 @@ async def run_sitl(
         mock_status_problems=len(problems),
         mock_problem_kinds=dict(kinds),
         failures=failures,
+        log=writer.stats if writer is not None else None,
     )

@@ -1,0 +1,459 @@
+"""Convert between MCAP flight logs and ``tcm-scenario/1`` directories.
+
+:func:`log_to_scenario` turns a flight log (one ``.mcap`` or a directory of rotated
+ones) into a scenario that ``tcm-companion replay`` and ``eval`` read: the frames of
+one camera as PNG files with their capture times, the MAVLink the companion received
+as a MAVProxy ``.tlog``, and the camera model from the log's metadata.
+:func:`scenario_to_log` goes the other way, writing a scenario as a flight log with the
+topics the daemon writes (optionally with replayed results, so the log opens in the
+Foxglove layout of ``tools/foxglove``).
+
+Time bases. The log stamps every message twice: ``publish_time`` is the companion's
+monotonic clock (``t_us * 1000`` of the call that logged it) and ``log_time`` is the
+wall clock. A scenario wants one clock for frames and telemetry, microseconds since the
+Unix epoch (scenario format: ``frames.csv`` ``t_us`` "on the same clock as the
+telemetry timestamps"; ``.tlog`` records carry the receive time, Unix epoch). So frame
+capture times and MAVLink receive times are both taken from ``publish_time`` (the exact
+values the daemon used) and shifted by one constant wall-minus-monotonic offset: the
+median of ``log_time - publish_time`` over the converted records. Capture times and
+receive times therefore keep exactly the spacing they had live, and land on the wall
+clock. Going back, :func:`scenario_to_log` logs with a zero offset, so the scenario's
+times come back unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import shutil
+import statistics
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import tomli_w
+
+from ..core.camera import CameraModel, CameraModelError, camera_from_dict
+from ..io import flightlog
+from ..io.scenario import FORMAT, FRAMES_HEADER, ScenarioError, load_scenario
+from ..io.tlog import TlogError, TlogWriter, read_tlog
+from ..service.logdocs import annotation_circles, result_doc
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "ExportSummary",
+    "ImportSummary",
+    "LogConversionError",
+    "camera_from_metadata",
+    "check_log_path",
+    "log_to_scenario",
+    "parse_mavlink",
+    "replay_result_doc",
+    "scenario_to_log",
+    "split_mavlink",
+]
+
+_FRAME_NAME = re.compile(r"^\d{6}\.png$")
+# Message ids the scenario reader needs from the autopilot (common.xml).
+_MSGID_ATTITUDE = (30, 31)  # ATTITUDE, ATTITUDE_QUATERNION
+
+
+class LogConversionError(ValueError):
+    """A log or scenario cannot be converted; the message names the file at fault."""
+
+
+@dataclass
+class ExportSummary:
+    """What :func:`log_to_scenario` wrote."""
+
+    scenario_dir: Path
+    frames: int
+    telemetry_records: int
+    wall_minus_mono_us: int
+    frames_skipped: int = 0  # capture time not after the previous frame's
+    mavlink_bad: int = 0  # bytes of /mavlink/in that did not frame or failed the CRC
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ImportSummary:
+    """What :func:`scenario_to_log` wrote."""
+
+    log_path: Path
+    frames: int
+    mavlink_records: int
+    results: int = 0
+
+
+# --------------------------------------------------------------------------------------
+# Shared helpers
+# --------------------------------------------------------------------------------------
+def camera_from_metadata(
+    metadata: dict[str, str], camera_id: int, where: str | Path
+) -> CameraModel:
+    """The camera model a log's metadata holds under ``camera{id}`` (JSON of ``to_dict()``)."""
+    key = f"camera{camera_id}"
+    text = metadata.get(key)
+    if text is None:
+        have = ", ".join(sorted(k for k in metadata if k.startswith("camera"))) or "none"
+        raise LogConversionError(
+            f"{where}: metadata has no {key!r} camera model (camera keys present: {have})"
+        )
+    try:
+        table = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise LogConversionError(f"{where}: metadata {key!r} is not JSON: {exc}") from None
+    if not isinstance(table, dict):
+        raise LogConversionError(f"{where}: metadata {key!r} is not a JSON object")
+    try:
+        return camera_from_dict(table, where=f"{where}: metadata {key}")
+    except CameraModelError as exc:
+        raise LogConversionError(str(exc)) from None
+
+
+def parse_mavlink(
+    chunks: Iterator[tuple[int, bytes]],
+    on_bad: Callable[[int], None] | None = None,
+) -> Iterator[tuple[int, Any]]:
+    """Decode ``(t, bytes)`` chunks of a MAVLink byte stream into ``(t, message)``.
+
+    One parser (the project's dialect) runs over the whole stream, so a frame split
+    across two chunks (a serial read that ended mid-frame) is rebuilt and stamped with
+    the time of the chunk that completed it, i.e. when it was received. Bytes that are
+    no frame or fail the CRC are dropped (``on_bad`` gets their count); messages of ids
+    the dialect does not know come out as ``MAVLink_unknown`` with their raw frame.
+    """
+    from ..mavlink import tcm_dialect
+
+    mav = tcm_dialect.MAVLink(None)
+    mav.robust_parsing = True
+    for t, data in chunks:
+        for msg in mav.parse_buffer(data) or ():
+            if isinstance(msg, tcm_dialect.MAVLink_bad_data):
+                if on_bad is not None:
+                    on_bad(len(msg.get_msgbuf()))
+                continue
+            yield t, msg
+
+
+def split_mavlink(
+    chunks: Iterator[tuple[int, bytes]],
+    on_bad: Callable[[int], None] | None = None,
+) -> Iterator[tuple[int, bytes]]:
+    """Split ``(t, bytes)`` chunks of a MAVLink stream into ``(t, raw frame)``; see
+    :func:`parse_mavlink` (frames of unknown message ids are kept as they are)."""
+    for t, msg in parse_mavlink(chunks, on_bad):
+        yield t, bytes(msg.get_msgbuf())
+
+
+def check_log_path(log_path: Path) -> None:
+    """A log file, or a directory holding rotated parts; else an error naming it."""
+    if not log_path.exists():
+        raise LogConversionError(f"{log_path}: no such log file or directory")
+    if log_path.is_dir() and not flightlog.log_files(log_path):
+        raise LogConversionError(f"{log_path}: directory holds no flight log (tcm-*.mcap)")
+
+
+def _wall_minus_mono_us(metadata: dict[str, str], offsets_ns: list[int]) -> int:
+    """The writer's wall-minus-monotonic offset: from the metadata record when it is
+    there (the writer stamps ``log_time = publish_time + offset``), else the median of
+    the records' ``log_time - publish_time``."""
+    text = metadata.get("wall_minus_mono_ns")
+    if text is not None:
+        try:
+            return round(int(text) / 1000)
+        except ValueError:
+            pass
+    return round(statistics.median(offsets_ns) / 1000) if offsets_ns else 0
+
+
+def _msgid(frame: bytes) -> int:
+    if frame[0] == 0xFD:
+        return frame[7] | (frame[8] << 8) | (frame[9] << 16)
+    return frame[5]
+
+
+def _clear_stale_frames(frames_dir: Path, n_frames: int) -> None:
+    for stale in frames_dir.iterdir():
+        if _FRAME_NAME.match(stale.name) and int(stale.name[:6]) >= n_frames:
+            stale.unlink()
+
+
+# --------------------------------------------------------------------------------------
+# Log -> scenario
+# --------------------------------------------------------------------------------------
+def log_to_scenario(
+    log_path: str | Path,
+    out_dir: str | Path,
+    camera_id: int = 0,
+    *,
+    name: str | None = None,
+) -> ExportSummary:
+    """Write the flight log ``log_path`` (file or rotated directory) as a scenario.
+
+    ``out_dir`` gets ``scenario.toml`` (camera model from the log's metadata
+    ``camera{camera_id}``), ``frames/NNNNNN.png`` with ``frames.csv`` (capture times) from
+    ``/camera{camera_id}/image``, and ``telemetry.tlog`` from ``/mavlink/in`` (each MAVLink
+    frame with its receive time). Raises :class:`LogConversionError` naming the log when
+    it lacks the camera model, the camera's images or the autopilot's attitude.
+    """
+    log_path = Path(log_path)
+    out = Path(out_dir)
+    check_log_path(log_path)
+    if out.resolve() == log_path.resolve():
+        raise LogConversionError(f"{out}: the scenario directory cannot be the log itself")
+    metadata = flightlog.read_metadata(log_path)
+    camera = camera_from_metadata(metadata, camera_id, log_path)
+
+    image_topic = f"/camera{camera_id}/image"
+    frames_dir = out / "frames"
+    frames_dir.mkdir(parents=True, exist_ok=True)
+
+    capture_mono_us: list[int] = []
+    chunks: list[tuple[int, bytes]] = []
+    offsets_ns: list[int] = []
+    skipped = 0
+    for rec in flightlog.read_log(log_path, topics=[image_topic, "/mavlink/in"]):
+        if rec.topic == "/mavlink/in":
+            chunks.append((rec.publish_time_ns // 1000, bytes(rec.data)))
+            offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
+            continue
+        try:
+            _cam, t_us, image = flightlog.decode_image(rec)
+        except Exception as exc:  # name the file and the message at fault
+            raise LogConversionError(
+                f"{log_path}: {image_topic} message at log time {rec.log_time_ns} ns "
+                f"cannot be decoded: {exc}"
+            ) from None
+        if image is None or image.ndim != 3:
+            raise LogConversionError(
+                f"{log_path}: {image_topic} message at log time {rec.log_time_ns} ns "
+                "holds no colour image"
+            )
+        h, w = image.shape[:2]
+        if (w, h) != (camera.width, camera.height):
+            raise LogConversionError(
+                f"{log_path}: {image_topic} frame at t={t_us} us is {w}x{h} but metadata "
+                f"camera{camera_id} says {camera.width}x{camera.height}"
+            )
+        if capture_mono_us and t_us <= capture_mono_us[-1]:
+            skipped += 1  # scenario frame times must strictly increase
+            continue
+        path = frames_dir / f"{len(capture_mono_us):06d}.png"
+        if not cv2.imwrite(str(path), image):
+            raise OSError(f"{path}: cv2.imwrite failed")
+        capture_mono_us.append(int(t_us))
+        offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
+
+    if not capture_mono_us:
+        raise LogConversionError(f"{log_path}: no messages on {image_topic}")
+    if not chunks:
+        raise LogConversionError(
+            f"{log_path}: no messages on /mavlink/in (a scenario needs the autopilot telemetry)"
+        )
+    offset_us = _wall_minus_mono_us(metadata, offsets_ns)
+
+    bad = 0
+
+    def count_bad(n: int) -> None:
+        nonlocal bad
+        bad += n
+
+    frames_out = list(split_mavlink(iter(chunks), on_bad=count_bad))
+    if not any(_msgid(f) in _MSGID_ATTITUDE for _, f in frames_out):
+        raise LogConversionError(
+            f"{log_path}: /mavlink/in holds no ATTITUDE or ATTITUDE_QUATERNION "
+            "(the scenario format requires the autopilot's attitude)"
+        )
+
+    with open(out / "telemetry.tlog", "wb") as tlog:
+        writer = TlogWriter(tlog)
+        for t_mono, frame in frames_out:
+            writer.write(t_mono + offset_us, frame)
+
+    with open(out / "frames.csv", "w", newline="") as csv:
+        csv.write(",".join(FRAMES_HEADER) + "\n")
+        for i, t_mono in enumerate(capture_mono_us):
+            csv.write(f"{i},{t_mono + offset_us}\n")
+
+    _clear_stale_frames(frames_dir, len(capture_mono_us))
+    description = f"converted from flight log {log_path.name} (camera{camera_id})"
+    if metadata.get("description"):
+        description += f": {metadata['description']}"
+    doc: dict[str, Any] = {
+        "format": FORMAT,
+        "name": name or log_path.stem,
+        "description": description,
+        "frames_dir": "frames",
+        "camera": camera.to_dict(),
+    }
+    (out / "scenario.toml").write_text(tomli_w.dumps(doc), encoding="utf-8")
+
+    summary = ExportSummary(
+        scenario_dir=out,
+        frames=len(capture_mono_us),
+        telemetry_records=len(frames_out),
+        wall_minus_mono_us=offset_us,
+        frames_skipped=skipped,
+        mavlink_bad=bad,
+    )
+    if skipped:
+        summary.warnings.append(
+            f"{log_path}: {skipped} frames on {image_topic} skipped (capture time not after "
+            "the previous frame's)"
+        )
+    if bad:
+        summary.warnings.append(
+            f"{log_path}: {bad} bytes on /mavlink/in were not valid MAVLink frames (dropped)"
+        )
+    for w in summary.warnings:
+        log.warning("%s", w)
+    return summary
+
+
+# --------------------------------------------------------------------------------------
+# Scenario -> log
+# --------------------------------------------------------------------------------------
+def _retry(what: str, call: Callable[..., bool], *args: Any, timeout_s: float = 10.0) -> None:
+    """The writer refuses (returns False) while its queue is full: wait, never drop."""
+    deadline = time.monotonic() + timeout_s
+    while not call(*args):
+        if time.monotonic() > deadline:
+            raise LogConversionError(
+                f"the flight log writer refused {what} for {timeout_s:.0f} s "
+                "(logging stopped: disk full or writer failed?)"
+            )
+        time.sleep(0.002)
+
+
+def scenario_to_log(
+    scenario_dir: str | Path,
+    log_path: str | Path,
+    image_format: str = "png",
+    *,
+    results: bool = False,
+    config: Any | None = None,
+) -> ImportSummary:
+    """Write the scenario at ``scenario_dir`` as the flight log file ``log_path``.
+
+    Frames go to ``/camera0/image`` at their capture times (``image_format`` ``"png"``,
+    lossless, or ``"jpeg"``), the ``.tlog``'s MAVLink frames to ``/mavlink/in`` at their
+    receive times, and the camera model to the metadata (``camera0``). With ``results``
+    the scenario is also replayed (``config``: an ``AppConfig``, default settings if
+    None) and each frame's ``/tcm/result`` and ``/camera0/annotations`` are logged too.
+    Times are logged as they are (wall minus monotonic = 0), so converting the log back
+    gives the same times.
+    """
+    scenario_dir = Path(scenario_dir)
+    log_path = Path(log_path)
+    if image_format not in ("png", "jpeg"):
+        raise ValueError(f"image_format must be 'png' or 'jpeg', got {image_format!r}")
+    if log_path.is_dir():
+        raise LogConversionError(f"{log_path}: is a directory; give the .mcap file to write")
+    scenario = load_scenario(scenario_dir)  # ScenarioError names file and line
+    tlog_path = scenario_dir / "telemetry.tlog"
+    try:
+        records, _stats = read_tlog(tlog_path)
+    except TlogError as exc:
+        raise ScenarioError(str(exc)) from None
+    mavlink = [(r.recv_us, bytes(r.msg.get_msgbuf())) for r in records]
+    mavlink.sort(key=lambda x: x[0])
+
+    pipeline = None
+    threshold = 0.0
+    wait_us = 0
+    if results:
+        from ..config import AppConfig
+        from ..core.pipeline import Pipeline
+
+        cfg = config if config is not None else AppConfig()
+        pipeline = Pipeline(scenario.camera, cfg.pipeline)
+        threshold = float(cfg.pipeline.classifier.tcm_threshold)
+        wait_us = int(cfg.replay.telemetry_wait_us)
+        telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
+
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{log_path.stem}-", dir=log_path.parent))
+    n_results = 0
+    try:
+        lcfg = flightlog.LoggingConfig(
+            enabled=True,
+            directory=str(tmp),
+            image_format=image_format,  # type: ignore[arg-type]
+            rotate_size_mb=1e9,
+            rotate_interval_s=1e12,
+            min_free_mb=0.0,
+            queue_items=64,  # bounded memory; the producer waits (see _retry)
+        )
+        writer = flightlog.FlightLogWriter(lcfg, tmp, wall_minus_mono_ns=0)
+        writer.start(
+            {
+                "camera0": json.dumps(scenario.camera.to_dict()),
+                "source": f"tcm-scenario {scenario_dir}",
+                "scenario_name": scenario.name,
+                "description": scenario.description,
+            }
+        )
+        try:
+            j = 0  # next MAVLink record
+            k = 0  # next telemetry sample for the pipeline
+            for i, t_us, image in scenario.iter_frames():
+                while j < len(mavlink) and mavlink[j][0] <= t_us:
+                    t_m, frame = mavlink[j]
+                    _retry("a MAVLink message", writer.log_mavlink, "in", t_m, frame)
+                    j += 1
+                _retry(f"frame {i}", writer.log_frame, 0, t_us, image)
+                if pipeline is not None:
+                    start = k
+                    while k < len(telemetry) and telemetry[k].recv_us <= t_us + wait_us:
+                        k += 1
+                    res = pipeline.step(image, t_us, telemetry[start:k])
+                    doc = replay_result_doc(res, threshold)
+                    circles = annotation_circles(res, scenario.camera)
+                    _retry(f"result {i}", writer.log_json, "/tcm/result", t_us, doc)
+                    _retry(f"annotations {i}", writer.log_annotations, 0, t_us, circles)
+                    n_results += 1
+            for t_m, frame in mavlink[j:]:
+                _retry("a MAVLink message", writer.log_mavlink, "in", t_m, frame)
+        finally:
+            writer.stop(timeout_s=60.0)
+        st = writer.stats
+        want_messages = len(mavlink) + 2 * n_results
+        if st.frames_logged != scenario.n_frames or st.messages_logged != want_messages:
+            raise LogConversionError(
+                f"{log_path}: the flight log writer logged {st.frames_logged}/"
+                f"{scenario.n_frames} frames and {st.messages_logged}/{want_messages} "
+                f"messages (state {st.state}, {st.write_errors} write errors, "
+                f"{st.encode_errors} encode errors)"
+            )
+        files = flightlog.log_files(tmp)
+        if len(files) != 1:
+            raise LogConversionError(
+                f"{tmp}: the flight log writer produced {len(files)} files, expected one"
+            )
+        shutil.move(str(files[0]), str(log_path))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return ImportSummary(
+        log_path=log_path, frames=scenario.n_frames, mavlink_records=len(mavlink), results=n_results
+    )
+
+
+def replay_result_doc(result: Any, threshold: float, camera_id: int = 0) -> dict[str, Any]:
+    """The ``/tcm/result`` document of a replayed :class:`FrameResult` (no latency: the
+    frame was not captured live; processing time = capture time)."""
+    return result_doc(
+        camera_id,
+        result,
+        threshold=threshold,
+        t_process_us=int(result.t_us),
+        override="",
+        clock_offset_us=float("nan"),
+        latency_ms=None,
+    )

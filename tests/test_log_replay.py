@@ -119,3 +119,17 @@ def test_kill_9_loses_at_most_about_a_second(tmp_path: Path) -> None:
     assert 0 <= lost_s <= LoggingConfig().flush_interval_s + 0.6, lost_s
     # And what is there replays.
     assert sum(1 for r in read_log(log_dir, {"/camera0/image"})) > 10
+
+
+def test_a_log_that_cannot_keep_up_drops_frames_counts_them_and_says_so(tmp_path: Path) -> None:
+    config = lossless(AppConfig())
+    config = replace(config, logging=replace(config.logging, queue_items=1))
+    report = asyncio.run(
+        run_sitl(config, duration_s=5.0, state_dir=str(tmp_path / "s"), log_dir=str(tmp_path / "l"))
+    )
+    log = report.log
+    assert log is not None and log.frames_dropped_queue > 0
+    delivered = sum(c.delivered for c in report.summary.camera_stats.values())
+    assert log.frames_logged + log.frames_dropped_queue + log.frames_dropped_disk == delivered
+    assert report.summary.frames_balance  # the avoidance output did not wait for the log
+    assert any("log behind" in t for t in report.statustexts), report.statustexts

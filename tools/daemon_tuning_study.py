@@ -32,7 +32,7 @@ def main() -> None:
     work = tempfile.mkdtemp(prefix="tcm-tuning-")
     print(f"{duration:.0f} s per variant, 25 Hz, 360x220; latency in ms (capture -> MAVLink)")
     print(
-        f"{'variant':<62} {'p50':>6} {'p90':>6} {'p99':>6} {'pipe p50':>8} {'CPU %':>6} {'RSS MiB':>8} {'waited':>6}"
+        f"{'variant':<62} {'p50':>6} {'p90':>6} {'p99':>6} {'pipe p50':>8} {'CPU %':>6} {'RSS MiB':>8} {'waited':>6} {'log GB/h':>8}"
     )
     for name, sets in VARIANTS:
         r = run_daemon_bench(duration, out=lambda _s: None, workdir=work, extra_sets=sets)

@@ -606,6 +606,11 @@ class CompanionEndpoint:
         out, self._out = bytes(self._out), bytearray()
         return out
 
+    @property
+    def statustexts_queued(self) -> list[str]:
+        """Every distinct STATUSTEXT this endpoint has queued (most recent last)."""
+        return sorted(self._statustext_sent, key=self._statustext_sent.__getitem__)
+
     def statustext(self, severity: int, text: str, now_us: int) -> bool:
         """Queue a STATUSTEXT; dropped (False) if the same text went out recently."""
         last = self._statustext_sent.get(text)

@@ -45,6 +45,7 @@ from ..core.pipeline import FrameResult
 from ..io.allocator import trim_heap
 from ..io.cameras.base import CameraStats, Frame, FrameSource
 from ..io.transports import Transport, open_transport
+from ..mavlink import tcm_dialect as d
 from ..mavlink.endpoint import CompanionEndpoint, Event, ParamChanged, TelemetryReceived
 from ..mavlink.link import CompanionLink
 from ..mavlink.setup import make_endpoint, persist
@@ -191,6 +192,7 @@ class Daemon:
         # Write parameter changes to config.mavlink's files at once (always when the
         # daemon made the endpoint from the configuration itself).
         self._persist_params = persist_params
+        self._log_dropped_reported = 0
         # () -> (TCM_LOG_STATE, stats for the health log); the writer's, when logging.
         self.log_state = log_state
         interval = config.daemon.health_interval_us
@@ -367,6 +369,15 @@ class Daemon:
             now = self.clock_us()
             if self.log_state is not None:
                 comp.log_state, log_stats = self.log_state()
+                behind = int(log_stats.get("frames_dropped_queue", 0))
+                if behind > self._log_dropped_reported:
+                    # The disk (or the writer) cannot keep up: say so, once in a while.
+                    comp.endpoint.statustext(
+                        d.MAV_SEVERITY_WARNING,
+                        f"TCM: log behind, {behind} frames not logged",
+                        now,
+                    )
+                    self._log_dropped_reported = behind
             for name, problem in comp.tick(now):
                 if problem:
                     log.warning("input %s: %s", name, problem)

@@ -78,6 +78,7 @@ class SitlReport:
     mock_problem_kinds: dict[str, int]
     failures: list[str]
     log: Any = None  # the flight log's final stats, when logging
+    statustexts: list[str] = field(default_factory=list)  # what the daemon told the GCS
 
     @property
     def ok(self) -> bool:
@@ -322,4 +323,5 @@ async def run_sitl(
         mock_problem_kinds=dict(kinds),
         failures=failures,
         log=writer.stats if writer is not None else None,
+        statustexts=endpoint.statustexts_queued,
     )

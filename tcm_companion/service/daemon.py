@@ -369,12 +369,13 @@ class Daemon:
             now = self.clock_us()
             if self.log_state is not None:
                 comp.log_state, log_stats = self.log_state()
-                behind = int(log_stats.get("frames_dropped_queue", 0))
+                frames = int(log_stats.get("frames_dropped_queue", 0))
+                behind = frames + int(log_stats.get("messages_dropped_queue", 0))
                 if behind > self._log_dropped_reported:
                     # The disk (or the writer) cannot keep up: say so, once in a while.
                     comp.endpoint.statustext(
                         d.MAV_SEVERITY_WARNING,
-                        f"TCM: log behind, {behind} frames not logged",
+                        f"TCM: log behind, {frames} frames, {behind - frames} msgs lost",
                         now,
                     )
                     self._log_dropped_reported = behind

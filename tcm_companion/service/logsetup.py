@@ -71,6 +71,7 @@ def start_flight_log(
             "frames_dropped_queue": st.frames_dropped_queue,
             "frames_dropped_disk": st.frames_dropped_disk,
             "messages_dropped_queue": st.messages_dropped_queue,
+            "queue_depth": getattr(st, "queue_depth", 0),
             "bytes_written": st.bytes_written,
             "write_errors": st.write_errors,
         }

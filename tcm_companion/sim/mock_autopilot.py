@@ -874,8 +874,19 @@ class MockAutopilot:
             # An alarm we cannot trust (stale time or bad fields) is not acted on.
             self.stats["collision alarm ignored (bad status)"] += 1
             return
+        brake = self.start_brake(now, int(msg.track_id), ttc)
+        if brake is not None:
+            events.append(brake)
+
+    def start_brake(
+        self, now_us: int, track_id: int, ttc_s: float, text: str | None = None
+    ) -> BrakeStarted | None:
+        """Start the brake manoeuvre now (the built-in rule above, or an outside decider
+        such as the Lua applet, :mod:`.lua_applet`); None when already braking. ``text``
+        replaces the STATUSTEXT (empty: none)."""
         if self._brake is not None:
-            return
+            return None
+        now = self._advance(now_us)
         t = self.scenario_t_s(now)
         pos = self._motion.position_ned_m(t)
         vel = self._motion.velocity_ned_mps(t)
@@ -885,15 +896,18 @@ class MockAutopilot:
         hover_at = now + math.ceil(path.stop_after_s * 1e6)
         self._brake = BrakeStarted(
             now,
-            int(msg.track_id),
-            ttc,
+            int(track_id),
+            float(ttc_s),
             float(np.linalg.norm(vel)),
             hover_at,
             _vec3(path.position_ned_m(t + path.stop_after_s)),
         )
         self.stats["brakes"] += 1
-        self._statustext(mav.MAV_SEVERITY_WARNING, f"brake: collision course track {msg.track_id}")
-        events.append(self._brake)
+        if text is None:
+            text = f"brake: collision course track {track_id}"
+        if text:
+            self._statustext(mav.MAV_SEVERITY_WARNING, text)
+        return self._brake
 
 
 # --------------------------------------------------------------------------------------

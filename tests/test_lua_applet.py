@@ -1,0 +1,554 @@
+"""The ArduPilot Lua applet (tools/ardupilot/tcm_avoid.lua) fed with frames from OUR encoder.
+
+Runs the applet under ``lua5.4`` with the fake bindings of tools/ardupilot/harness.lua
+(skipped when the binary is missing: ``apt-get install -y lua5.4``). Each test writes a
+command script (state, parameters, wire frames as hex, simulated time) and checks what
+the applet did: STATUSTEXTs, mode changes, proximity pushes, decoded fields.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from tcm_companion.mavlink import tcm_dialect as d
+from tcm_companion.mavlink.codec import MavlinkCodec
+
+ROOT = Path(__file__).resolve().parents[1]
+APPLET = ROOT / "tools" / "ardupilot" / "tcm_avoid.lua"
+HARNESS = ROOT / "tools" / "ardupilot" / "harness.lua"
+LUA = shutil.which("lua5.4")
+
+pytestmark = pytest.mark.skipif(
+    LUA is None, reason="lua5.4 not installed (apt-get install -y lua5.4)"
+)
+
+NAN = float("nan")
+BRAKE, LOITER, RTL, AUTO, GUIDED, STABILIZE, LAND, ALT_HOLD, POSHOLD = 17, 5, 6, 3, 4, 0, 9, 2, 16
+
+
+@dataclass
+class Result:
+    lines: list[str]
+
+    @property
+    def texts(self) -> list[str]:
+        out = []
+        for line in self.lines:
+            m = re.match(r'TEXT (\d+) (\d+) "(.*)"$', line)
+            if m:
+                out.append(m.group(3))
+        return out
+
+    def texts_with(self, part: str) -> list[str]:
+        return [t for t in self.texts if part in t]
+
+    @property
+    def set_modes(self) -> list[int]:
+        return [int(line.split()[2]) for line in self.lines if line.startswith("SET_MODE")]
+
+    @property
+    def fields(self) -> list[dict]:
+        return [json.loads(line[7:]) for line in self.lines if line.startswith("FIELDS ")]
+
+    @property
+    def stats(self) -> dict:
+        return [json.loads(line[6:]) for line in self.lines if line.startswith("STATS ")][-1]
+
+    @property
+    def prx(self) -> list[list[float]]:
+        return [
+            [float(x) for x in line.split()[2:5]] for line in self.lines if line.startswith("PRX ")
+        ]
+
+
+@dataclass
+class Scenario:
+    """A command script for the harness; ``now`` tracks the harness clock (ms since boot)."""
+
+    sysid: int = 1
+    compid: int = 191
+    now: int = 10000
+    cmds: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.codec = MavlinkCodec(self.sysid, self.compid)
+
+    def vehicle(self, armed: bool = True, flying: bool = True, mode: int = AUTO) -> Scenario:
+        self.cmds += [f"armed {int(armed)}", f"flying {int(flying)}", f"mode {mode}"]
+        return self
+
+    def param(self, name: str, value: float) -> Scenario:
+        self.cmds.append(f"param {name} {value}")
+        return self
+
+    def cmd(self, text: str) -> Scenario:
+        self.cmds.append(text)
+        return self
+
+    def frame(self, data: bytes, rx_age_ms: int = 0) -> Scenario:
+        self.cmds.append(f"frame {data.hex()} {rx_age_ms}")
+        return self
+
+    def status_msg(self, **kw) -> d.MAVLink_tcm_object_status_message:
+        age = kw.pop("age_ms", 0)
+        v = dict(
+            time_boot_ms=self.now - age,
+            track_id=7,
+            camera_id=0,
+            state=2,
+            reason=0,
+            disparity=0.3,
+            threshold=0.09,
+            ttc=1.5,
+            collision_course=1,
+            azimuth=0.1,
+            elevation=-0.05,
+            angular_radius=0.02,
+            range=NAN,
+            confidence=90,
+        )
+        v.update(kw)
+        return d.MAVLink_tcm_object_status_message(**v)
+
+    def status(self, codec: MavlinkCodec | None = None, mutate=None, **kw) -> Scenario:
+        data = (codec or self.codec).encode(self.status_msg(**kw))
+        return self.frame(mutate(data) if mutate else data)
+
+    def health(self, health: int = 0, **kw) -> Scenario:
+        v = dict(
+            time_boot_ms=self.now,
+            frame_rate=25.0,
+            latency=12.5,
+            frames_dropped=3,
+            egomotion_source=3,
+            egomotion_quality=88,
+            health=health,
+            objects=1,
+            log_state=1,
+            timesync_offset_us=-123456789012,
+            timesync_rtt_us=5400,
+        )
+        v.update(kw)
+        return self.frame(self.codec.encode(d.MAVLink_tcm_pipeline_health_message(**v)))
+
+    def run(self, ms: int) -> Scenario:
+        self.cmds.append(f"run {ms}")
+        self.now += ms
+        return self
+
+    def stream(self, ms: int, period: int = 40, **kw) -> Scenario:
+        """Statuses every ``period`` ms for ``ms`` ms (a tracked object at 25 Hz)."""
+        for _ in range(ms // period):
+            self.status(**kw)
+            self.run(period)
+        return self
+
+    def execute(self) -> Result:
+        script = "\n".join([*self.cmds, "stats"]) + "\n"
+        proc = subprocess.run(
+            [LUA, str(HARNESS), str(APPLET)],
+            input=script,
+            capture_output=True,
+            text=True,
+            timeout=20,
+            cwd=ROOT,
+        )
+        assert proc.returncode == 0, proc.stderr
+        lines = proc.stdout.splitlines()
+        assert not [line for line in lines if line.startswith("ERROR")], lines
+        return Result(lines)
+
+
+def armed_scenario(action: int = 2, mode: int = AUTO) -> Scenario:
+    return Scenario().vehicle(mode=mode).param("TCMA_ACTION", action)
+
+
+# ---------------------------------------------------------------- constants
+def _lua_const(name: str) -> str:
+    m = re.search(rf"^local {name} = (.+)$", APPLET.read_text(), re.M)
+    assert m, name
+    return m.group(1).strip()
+
+
+def _lua_list(name: str) -> list[str]:
+    m = re.search(rf"local {name} = \{{(.*?)\}}", APPLET.read_text(), re.S)
+    assert m, name
+    return re.findall(r'"(\w+)"', m.group(1))
+
+
+_PY_TO_LUA = {"I": "I4", "i": "i4", "H": "I2", "h": "i2", "B": "B", "b": "b"}
+_PY_TO_LUA.update({"f": "f", "d": "d", "q": "i8", "Q": "I8"})
+
+
+@pytest.mark.parametrize(
+    "cls, suffix",
+    [
+        (d.MAVLink_tcm_object_status_message, "OBJECT_STATUS"),
+        (d.MAVLink_tcm_pipeline_health_message, "PIPELINE_HEALTH"),
+    ],
+)
+def test_lua_constants_match_generated_dialect(cls, suffix):
+    assert int(_lua_const(f"MSGID_{suffix}")) == cls.id
+    assert int(_lua_const(f"CRC_EXTRA_{suffix}")) == cls.crc_extra
+    assert _lua_list(f"FIELDS_{suffix}") == list(cls.ordered_fieldnames)
+    fmt = cls.native_format.decode()
+    assert fmt[0] == "<"
+    lua_fmt = "<" + "".join(_PY_TO_LUA[c] for c in fmt[1:])
+    assert _lua_const(f"FMT_{suffix}") == f'"{lua_fmt}"'
+    assert int(_lua_const(f"LEN_{suffix}")) == cls.unpacker.size
+
+
+# ---------------------------------------------------------------- golden frames
+def _pymavlink_fields(frame: bytes) -> dict:
+    rx = MavlinkCodec(255, 190)
+    (msg,) = rx.feed(frame)
+    return {name: getattr(msg, name) for name in msg.ordered_fieldnames}
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, float) and math.isnan(a):
+        return b is None
+    if isinstance(a, float):
+        return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
+    return a == b
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(ttc=1.25, range=12.5, confidence=77, state=1, reason=0, camera_id=2, track_id=65000),
+        # trailing zero fields: MAVLink 2 trims them on the wire; Lua must zero-fill
+        dict(ttc=NAN, collision_course=0, confidence=0, reason=0, state=0, azimuth=-3.0),
+    ],
+)
+def test_golden_status_frame_decodes_the_same_in_python_and_lua(kw):
+    s = Scenario().param("TCMA_MIN_CONF", 0).cmd("trace 1").run(10)
+    frame = s.codec.encode(s.status_msg(**kw))
+    if kw.get("confidence") == 0:
+        assert frame[1] < d.MAVLink_tcm_object_status_message.unpacker.size  # truncated
+    s.frame(frame).run(60)
+    (lua,) = s.execute().fields
+    assert lua["kind"] == "status"
+    py = _pymavlink_fields(frame)
+    for name, value in py.items():
+        assert _same(value, lua[name]), (name, value, lua[name])
+
+
+def test_golden_health_frame_decodes_the_same_in_python_and_lua():
+    s = Scenario().cmd("trace 1").run(10)
+    msg = d.MAVLink_tcm_pipeline_health_message(
+        s.now, 24.5, 17.25, 123456, 2, 95, 0x21, 3, 1, -987654321012, 65535
+    )
+    frame = s.codec.encode(msg)
+    s.frame(frame).run(60)
+    (lua,) = s.execute().fields
+    assert lua["kind"] == "health"
+    for name, value in _pymavlink_fields(frame).items():
+        assert _same(value, lua[name]), (name, value, lua[name])
+
+
+# ---------------------------------------------------------------- actions
+@pytest.mark.parametrize(
+    "action, mode, name", [(2, BRAKE, "BRAKE"), (3, LOITER, "LOITER"), (4, RTL, "RTL")]
+)
+def test_collision_course_switches_mode_per_parameter(action, mode, name):
+    r = armed_scenario(action).stream(400).execute()
+    assert r.set_modes == [mode]  # once per alarm episode
+    (text,) = r.texts_with(f"-> {name}")
+    assert "collision course id 7 ttc 1.5s" in text
+
+
+@pytest.mark.parametrize("mode", [AUTO, GUIDED, LOITER, ALT_HOLD, POSHOLD, 7])  # 7 CIRCLE
+def test_brake_from_every_actionable_mode(mode):
+    assert armed_scenario(2, mode).stream(200).execute().set_modes == [BRAKE]
+
+
+def test_warn_action_only_warns():
+    r = armed_scenario(1).stream(400).execute()
+    assert r.set_modes == []
+    assert len(r.texts_with("collision course id 7")) == 1
+
+
+def test_action_none_is_silent():
+    r = armed_scenario(0).stream(400).execute()
+    assert r.set_modes == [] and r.texts_with("collision") == []
+
+
+def test_disabled_applet_ignores_everything():
+    r = armed_scenario(2).param("TCMA_ENABLE", 0).stream(400).execute()
+    assert r.set_modes == [] and r.texts_with("collision") == []
+
+
+def _flip_payload_byte(b: bytes) -> bytes:
+    x = bytearray(b)
+    x[12] ^= 0x40
+    return bytes(x)
+
+
+@pytest.mark.parametrize(
+    "why, kw, counter",
+    [
+        ("bad crc", dict(mutate=_flip_payload_byte), "bad_crc"),
+        ("bad crc byte", dict(mutate=lambda b: b[:-1] + bytes([b[-1] ^ 1])), "bad_crc"),
+        ("truncated", dict(mutate=lambda b: b[:20]), "bad_crc"),
+        ("wrong system", dict(codec=MavlinkCodec(2, 191)), "bad_src"),
+        ("wrong component", dict(codec=MavlinkCodec(1, 190)), "bad_src"),
+        ("stale", dict(age_ms=2000), "stale"),
+        ("from the future", dict(age_ms=-2000), "stale"),
+        ("low confidence", dict(confidence=30), "low_conf"),
+        ("MAVLink 1", dict(mutate=lambda b: b"\xfe" + b[1:]), "bad_magic"),
+    ],
+)
+def test_rejected_frames_cause_no_action(why, kw, counter):
+    r = armed_scenario(2).stream(400, **kw).execute()
+    assert r.set_modes == [], why
+    assert r.texts_with("collision") == [], why
+    assert r.stats[counter] >= 10, (why, r.stats)
+    assert r.stats["ok"] == 0
+
+
+def test_frame_waiting_too_long_in_the_queue_is_stale():
+    s = armed_scenario(2).run(10)
+    s.frame(s.codec.encode(s.status_msg()), rx_age_ms=1000).run(100)
+    r = s.execute()
+    assert r.set_modes == [] and r.stats["stale"] == 1
+
+
+@pytest.mark.parametrize(
+    "why, kw",
+    [
+        ("no collision course", dict(collision_course=0)),
+        ("ttc above threshold", dict(ttc=4.0)),
+        ("ttc unknown", dict(ttc=NAN)),
+        ("ttc negative", dict(ttc=-1.0)),
+    ],
+)
+def test_no_alarm_no_action(why, kw):
+    r = armed_scenario(2).stream(400, **kw).execute()
+    assert r.set_modes == [] and r.texts_with("collision") == [], why
+    assert r.stats["ok"] >= 10
+
+
+@pytest.mark.parametrize(
+    "why, vehicle",
+    [
+        ("disarmed", dict(armed=False)),
+        ("not flying", dict(flying=False)),
+        ("STABILIZE (manual)", dict(mode=STABILIZE)),
+        ("LAND", dict(mode=LAND)),
+        ("RTL already", dict(mode=RTL)),
+        ("BRAKE already", dict(mode=BRAKE)),
+    ],
+)
+def test_unsafe_state_warns_without_mode_change(why, vehicle):
+    r = Scenario().vehicle(**vehicle).param("TCMA_ACTION", 2).stream(400).execute()
+    assert r.set_modes == [], why
+    assert len(r.texts_with("collision course id 7")) == 1, why
+
+
+def test_loiter_action_in_loiter_only_warns():
+    r = armed_scenario(3, LOITER).stream(400).execute()
+    assert r.set_modes == [] and len(r.texts_with("collision course")) == 1
+
+
+def test_not_a_copter_only_warns():
+    r = armed_scenario(2).cmd("fwtype 3").stream(400).execute()
+    assert r.set_modes == [] and len(r.texts_with("collision course")) == 1
+
+
+def test_refused_mode_change_is_announced():
+    r = armed_scenario(2).cmd("setmode_ok 0").stream(400).execute()
+    assert r.set_modes == [BRAKE]  # tried once per TXT_MS
+    assert len(r.texts_with("mode change refused")) == 1
+
+
+def test_companion_sysid_parameter():
+    other = MavlinkCodec(5, 191)
+    ok = armed_scenario(2).param("TCMA_SYSID", 5).stream(200, codec=other).execute()
+    assert ok.set_modes == [BRAKE]
+    own = armed_scenario(2).param("TCMA_SYSID", 5).stream(200).execute()
+    assert own.set_modes == [] and own.stats["bad_src"] >= 5
+
+
+def test_companion_compid_parameter():
+    r = armed_scenario(2).param("TCMA_COMPID", 190).stream(200, codec=MavlinkCodec(1, 190))
+    assert r.execute().set_modes == [BRAKE]
+
+
+def test_ttc_threshold_parameter():
+    assert armed_scenario(2).param("TCMA_TTC", 5).stream(200, ttc=4.0).execute().set_modes == [
+        BRAKE
+    ]
+
+
+def test_pilot_mode_change_wins_until_alarm_clears():
+    s = armed_scenario(2).stream(200)
+    s.cmd(f"mode {LOITER}")  # the pilot takes over during the alarm
+    s.stream(1000)
+    r1 = s.execute()
+    assert r1.set_modes == [BRAKE]
+    assert len(r1.texts_with("standing down")) == 1
+    # the alarm clears (the object is no longer reported), then comes back
+    s.run(1000).cmd(f"mode {AUTO}").stream(200)
+    r2 = s.execute()
+    assert r2.set_modes == [BRAKE, BRAKE]
+    assert len(r2.texts_with("alarm clear")) == 1
+
+
+def test_no_mode_change_while_pilot_in_charge_even_with_new_object():
+    s = armed_scenario(2).stream(200).cmd(f"mode {AUTO}")  # pilot re-engages AUTO
+    s.stream(600, track_id=8)
+    r = s.execute()
+    assert r.set_modes == [BRAKE]
+    assert len(r.texts_with("standing down")) == 1
+
+
+def test_warnings_are_rate_limited():
+    r = armed_scenario(1).stream(5000).execute()
+    # TCMA_TXT_MS = 2000: at 0, 2, 4 s
+    assert len(r.texts_with("collision course")) == 3
+    r = armed_scenario(1).param("TCMA_TXT_MS", 1000).stream(5000).execute()
+    assert len(r.texts_with("collision course")) == 5
+
+
+def test_silence_warned_once_then_resumed():
+    s = armed_scenario(1).stream(400, collision_course=0).run(3000)
+    s.stream(400, collision_course=0).run(3000)
+    texts = s.execute().texts
+    assert [t for t in texts if "companion data" in t] == [
+        "TCM: no companion data",
+        "TCM: companion data resumed",
+        "TCM: no companion data",
+    ]
+
+
+def test_silence_forgets_objects():
+    # the alarm's object is forgotten when the companion goes quiet: no action later
+    s = armed_scenario(2, STABILIZE).stream(200).run(1500).cmd(f"mode {AUTO}").run(500)
+    assert s.execute().set_modes == []
+
+
+def test_health_fault_announced_on_change():
+    s = Scenario()
+    for health in (0, 0, 2, 2, 2, 0):
+        s.health(health).run(300)
+    r = s.execute()
+    assert r.texts_with("companion fault") == ["TCM: companion fault 0x2"]
+    assert r.stats["ok"] == 6
+
+
+def test_stationary_objects_pushed_to_scripting_proximity_backend():
+    s = Scenario().cmd("prx_type 15").param("TCMA_PRX_IDX", 0)
+    s.status(state=1, range=6.5, azimuth=math.radians(30), elevation=math.radians(-10)).run(60)
+    s.status(state=2, range=6.5).run(60)  # moving: not a proximity obstacle
+    s.status(state=1, range=NAN).run(60)  # no range
+    r = s.execute()
+    assert len(r.prx) == 1
+    dist, yaw, pitch = r.prx[0]
+    assert dist == pytest.approx(6.5) and yaw == pytest.approx(30, abs=1e-3)
+    assert pitch == pytest.approx(-10, abs=1e-3)
+
+
+def test_proximity_off_by_default_and_wrong_backend_warned():
+    s = Scenario().cmd("prx_type 15").status(state=1, range=6.5).run(60)
+    assert s.execute().prx == []
+    s = Scenario().cmd("prx_type 2").param("TCMA_PRX_IDX", 0).status(state=1, range=6.5).run(60)
+    r = s.execute()
+    assert r.prx == [] and len(r.texts_with("not a scripting proximity")) == 1
+
+
+def test_work_per_update_is_bounded():
+    s = armed_scenario(0).cmd("queue_max 40").run(10)
+    for i in range(30):
+        s.status(track_id=i, collision_course=0)
+    s.run(50)  # exactly one update: at most 20 messages
+    assert s.execute().stats["rx"] == 20
+    s.run(50)  # the next update takes the rest
+    assert s.execute().stats["rx"] == 30
+
+
+def test_parameter_names_fit_ardupilot_limit():
+    names = re.findall(r'\{ "(\w+)", ', APPLET.read_text())
+    assert names and all(len("TCMA_" + n) <= 16 for n in names)
+
+
+# ---------------------------------------------------------------- inside the mock autopilot
+def _mock_run(action: int, ttc: float = 2.0, cc: int = 1):
+    pytest.importorskip("lupa", reason="lupa not installed (pip install lupa)")
+    import numpy as np
+
+    from tcm_companion.sim.lua_applet import LuaAppletAutopilot
+    from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
+
+    t0 = 5_000_000_000
+    cfg = MockAutopilotConfig(scenario="COLLISION", ekf_origin_delay_us=0, brake_on_collision=False)
+    ap = LuaAppletAutopilot(MockAutopilot(cfg, t0), params={"TCMA_ACTION": action})
+    codec = MavlinkCodec(1, 191)
+    now = t0
+    events = []
+    for _ in range(50):  # 2 s at 25 Hz
+        now += 40_000
+        msg = d.MAVLink_tcm_object_status_message(
+            ap.mock.boot_us(now) // 1000, 12, 0, 2, 0, 0.3, 0.09, ttc, cc, 0.0, 0.0, 0.02, NAN, 90
+        )
+        events += ap.receive_data(codec.encode(msg), now)
+        ap.data_to_send()
+    speed = float(np.linalg.norm(ap.mock.vehicle_truth(now + 2_000_000).velocity_ned_mps))
+    return ap, events, speed
+
+
+def test_mock_autopilot_brakes_through_the_applet():
+    from tcm_companion.sim.mock_autopilot import BrakeStarted
+
+    ap, events, speed = _mock_run(action=2)
+    assert ap.mavlink_init == (20, 20) and ap.registered == {45100, 45101}
+    assert ap.mode_requests == [BRAKE]
+    assert ap.braking is not None and [e for e in events if isinstance(e, BrakeStarted)]
+    assert any("-> BRAKE" in t for _, _, t in ap.texts)
+    assert speed < 0.05  # hovering after the stop (COLLISION flies at 1.5 m/s)
+    assert ap.mock.stats["brakes"] == 1
+
+
+@pytest.mark.parametrize("action, kw", [(1, {}), (2, {"cc": 0}), (2, {"ttc": 5.0})])
+def test_mock_autopilot_does_not_brake_without_applet_action(action, kw):
+    ap, _, speed = _mock_run(action, **kw)
+    assert ap.braking is None and ap.mode_requests == []
+    assert speed == pytest.approx(1.5, abs=0.1)
+
+
+def test_closed_loop_sitl_the_daemon_drives_the_applet_to_brake(tmp_path: Path) -> None:
+    """The real daemon's output, over loopback UDP, into the applet inside the mock: a
+    ball on a collision course makes the applet switch to BRAKE and the vehicle stop."""
+    pytest.importorskip("lupa")
+    import asyncio
+    import time
+    from dataclasses import replace
+
+    from tcm_companion.config import AppConfig
+    from tcm_companion.service.sitl import run_sitl
+    from tcm_companion.sim.lua_applet import LuaAppletAutopilot
+    from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
+
+    mcfg = MockAutopilotConfig(
+        scenario="COLLISION", brake_on_collision=False, unix_us_at_start=1_718_000_000_000_000
+    )
+    mock = LuaAppletAutopilot(
+        MockAutopilot(mcfg, time.monotonic_ns() // 1000), params={"TCMA_ACTION": 2}
+    )
+    config = AppConfig()
+    config = replace(config, sim=replace(config.sim, scenario="COLLISION"))
+    report = asyncio.run(
+        run_sitl(config, duration_s=10.0, state_dir=str(tmp_path), mock=mock)  # type: ignore[arg-type]
+    )
+    texts = [t for _, _, t in mock.texts]
+    assert any("-> BRAKE" in t for t in texts), texts
+    assert report.braked and mock.braking is not None
+    assert report.mock_status_problems == 0

@@ -29,7 +29,6 @@ import asyncio
 import contextlib
 import logging
 import sys
-import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -214,12 +213,9 @@ class Daemon:
         self._telemetry_event = asyncio.Event()
         self._handoff_failures = 0
         self._pending_at_stop = 0
-        self._processing_since_us: int | None = None
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
         self._tasks: list[asyncio.Task[Any]] = []
-        self._started = threading.Event()
-        self._last_status = ""
 
     # -- frames from the camera threads -------------------------------------------------
     def _make_on_frame(self, loop: asyncio.AbstractEventLoop) -> Callable[[Frame], None]:
@@ -302,9 +298,7 @@ class Daemon:
                 self._pending[cid] = None
                 arrived = self._arrival_us[cid]
                 now = self.clock_us()
-                self._processing_since_us = now
                 result = comp.process(cid, frame.image, frame.t_capture_us, now)
-                self._processing_since_us = None
                 done = self.clock_us()
                 if result is not None and self.flight_log is not None:
                     # Logged before anything else can run (the write below yields to the
@@ -403,7 +397,6 @@ class Daemon:
                 self.watchdog_withheld += 1
                 log.error("not pinging the watchdog: %s", why)
             line = _format_status(comp, now, list(comp.latencies_ms))
-            self._last_status = line
             if self.flight_log is not None:
                 rep = comp.health_report(now)
                 st = comp.inputs.status(now)

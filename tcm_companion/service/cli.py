@@ -176,17 +176,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             log_dir = log_directory(config, state)
             # The parameters in force at start (persisted ones included): replay needs them.
-            loop = asyncio.get_running_loop()
-
-            def on_log_event(severity: str, text: str) -> None:  # the writer's thread
-                from ..mavlink import tcm_dialect as d
-
-                sev = d.MAV_SEVERITY_INFO if severity == "info" else d.MAV_SEVERITY_WARNING
-                now = time.monotonic_ns() // 1000
-                loop.call_soon_threadsafe(endpoint.statustext, sev, f"TCM: {text}", now)
-
             writer, log_state = start_flight_log(
-                config, log_dir, cameras, dict(endpoint.params.values), on_log_event
+                config, log_dir, cameras, endpoint, asyncio.get_running_loop()
             )
             log.info("flight log in %s", log_dir)
         daemon = Daemon(

@@ -29,7 +29,6 @@ import asyncio
 import contextlib
 import logging
 import sys
-import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -46,15 +45,11 @@ from ..io.cameras.base import CameraStats, Frame, FrameSource
 from ..io.transports import Transport, open_transport
 from ..mavlink import tcm_dialect as d
 from ..mavlink.endpoint import CompanionEndpoint, Event, ParamChanged, TelemetryReceived
-from ..mavlink.link import CompanionLink
+from ..mavlink.link import CompanionLink, monotonic_us
 from ..mavlink.setup import make_endpoint, persist
 from .companion import Companion, CompanionStats
 
 log = logging.getLogger(__name__)
-
-
-def monotonic_us() -> int:
-    return time.monotonic_ns() // 1000
 
 
 class NotifierLike(Protocol):
@@ -240,17 +235,6 @@ class Daemon:
             # Every delivered frame, processed or not: the log shows what the camera saw.
             self.flight_log.log_frame(cid, frame.t_capture_us, frame.image)
         self._frame_event.set()
-
-    def _on_camera_state(self, loop: asyncio.AbstractEventLoop) -> Callable[[str, str], None]:
-        def on_state(name: str, state: str) -> None:  # camera thread
-            log.log(
-                logging.INFO if state in ("open", "reconnected") else logging.WARNING,
-                "camera %s: %s",
-                name,
-                state,
-            )
-
-        return on_state
 
     # -- events from the link --------------------------------------------------------------
     def _on_event(self, ev: Event) -> None:
@@ -469,7 +453,6 @@ class Daemon:
                     cid,
                     on_frame,
                     clock_us=self.clock_us,
-                    on_state=self._on_camera_state(loop),
                 )
                 self.readers.append(reader)
                 reader.start()

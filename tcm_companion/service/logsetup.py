@@ -7,6 +7,7 @@ version, and the wall-clock/monotonic relation the writer uses.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import time
@@ -17,6 +18,7 @@ from typing import Any
 from .. import __version__
 from ..config import AppConfig, config_to_toml
 from ..mavlink import tcm_dialect as d
+from ..mavlink.endpoint import CompanionEndpoint
 from .daemon import CameraInput
 
 
@@ -52,13 +54,25 @@ def start_flight_log(
     config: AppConfig,
     directory: Path,
     cameras: Sequence[CameraInput],
-    params: dict[str, float],
-    on_event: Callable[[str, str], None] | None = None,
+    endpoint: CompanionEndpoint,
+    loop: asyncio.AbstractEventLoop,
 ) -> tuple[Any, Callable[[], tuple[int, dict[str, Any]]]]:
     """Start a :class:`~tcm_companion.io.flightlog.FlightLogWriter`; returns it and the
-    ``log_state`` callable the daemon polls once a second."""
+    ``log_state`` callable the daemon polls once a second.
+
+    The writer's own events (disk below the floor, write faults, recovery) become
+    STATUSTEXTs on ``endpoint``, handed to ``loop`` from the writer's thread. The
+    metadata records the endpoint's parameter values now (persisted ones included),
+    which replay needs.
+    """
     from ..io.flightlog import FlightLogWriter
 
+    def on_event(severity: str, text: str) -> None:  # the writer's thread
+        sev = d.MAV_SEVERITY_INFO if severity == "info" else d.MAV_SEVERITY_WARNING
+        now_us = time.monotonic_ns() // 1000
+        loop.call_soon_threadsafe(endpoint.statustext, sev, f"TCM: {text}", now_us)
+
+    params = dict(endpoint.params.values)
     writer = FlightLogWriter(config.logging, directory, on_event=on_event)
     writer.start(metadata(config, cameras, params))
 

@@ -34,7 +34,6 @@ from ..core.camera import CameraModel
 from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult
 from ..io.transports import Transport, open_transport
-from ..mavlink import tcm_dialect as d
 from ..mavlink.setup import make_endpoint, persist, resolve_state_paths
 from ..sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
 from ..sim.mock_autopilot_run import run_mock_autopilot
@@ -237,15 +236,8 @@ async def run_sitl(
     writer = None
     log_state = None
     if log_dir is not None and config.logging.enabled:
-        loop = asyncio.get_running_loop()
-
-        def on_log_event(severity: str, text: str) -> None:  # writer thread
-            sev = d.MAV_SEVERITY_WARNING if severity != "info" else d.MAV_SEVERITY_INFO
-            t = time.monotonic_ns() // 1000
-            loop.call_soon_threadsafe(endpoint.statustext, sev, f"TCM: {text}", t)
-
         writer, log_state = start_flight_log(
-            config, Path(log_dir), cameras, dict(endpoint.params.values), on_log_event
+            config, Path(log_dir), cameras, endpoint, asyncio.get_running_loop()
         )
     daemon = Daemon(
         replace(config, mavlink=settings),

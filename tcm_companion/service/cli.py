@@ -195,7 +195,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             summary = await daemon.run(stop)
         finally:
             if writer is not None:
-                writer.stop()
+                await asyncio.to_thread(writer.stop)  # drains the queue; off the loop
             with contextlib.suppress(OSError):
                 persist(config.mavlink, endpoint)
         if printer is not None:

@@ -267,13 +267,17 @@ async def run_sitl(
             summary = await daemon.run(stop)
             persist(settings, endpoint)
         finally:
-            if writer is not None:
-                writer.stop()
             if timer is not None:
                 timer.cancel()
+            # The autopilot takes in the daemon's last messages before anything else may
+            # hold things up, then the log drains off the loop (a PNG backlog takes a
+            # while; blocking the loop on it would delay what the mock still receives
+            # and make those statuses look stale).
             mock_stop.set()
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(mock_task, 2.0)
+            if writer is not None:
+                await asyncio.to_thread(writer.stop)
     finally:
         await daemon_link.close()
         await mock_link.close()

@@ -35,7 +35,7 @@ interop-env: $(STAMP)
 	$(BIN)/python tools/interop_env.py --quiet
 
 test: lint typecheck
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
 eval: $(STAMP)
 	$(BIN)/tcm-companion eval --sim TS T45 T90 --out out/eval

@@ -28,6 +28,10 @@ from tcm_companion.replay_log import compare, replay_log
 from tcm_companion.service.sitl import run_sitl
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# Real-time SITL runs: one at a time (one xdist group), so that two of them never share
+# the two cores of a CI machine and their timing stays what they test.
+pytestmark = pytest.mark.xdist_group("sitl")
 LOGS = ROOT / "tests" / "data" / "logs"
 REFERENCES = sorted(LOGS.glob("*.mcap"))
 

@@ -524,6 +524,7 @@ def test_mock_autopilot_does_not_brake_without_applet_action(action, kw):
     assert speed == pytest.approx(1.5, abs=0.1)
 
 
+@pytest.mark.xdist_group("sitl")  # real-time SITL: one at a time (see tests/test_daemon.py)
 def test_closed_loop_sitl_the_daemon_drives_the_applet_to_brake(tmp_path: Path) -> None:
     """The real daemon's output, over loopback UDP, into the applet inside the mock: a
     ball on a collision course makes the applet switch to BRAKE and the vehicle stop."""

@@ -552,4 +552,4 @@ def test_closed_loop_sitl_the_daemon_drives_the_applet_to_brake(tmp_path: Path) 
     texts = [t for _, _, t in mock.texts]
     assert any("-> BRAKE" in t for t in texts), texts
     assert report.braked and mock.braking is not None
-    assert report.mock_status_problems == 0
+    assert report.mock_status_problems == 0, report.lines()

@@ -415,7 +415,8 @@ def test_close_makes_recv_and_send_raise_closed(link: Link) -> None:
             await asyncio.sleep(0.05)
             await a.close()
             with pytest.raises(TransportClosed):
-                await asyncio.wait_for(waiting, 2)  # a task already waiting wakes up
+                async with asyncio.timeout(2):
+                    await waiting  # a task already waiting wakes up
             with pytest.raises(TransportClosed):
                 await a.recv()
             with pytest.raises(TransportClosed):

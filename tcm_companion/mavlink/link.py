@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 
 from ..core.pipeline import FrameResult
+from ..io.aio import wait_event
 from ..io.transports import Transport, TransportClosed, TransportError, TransportTimeout
 from .endpoint import CompanionEndpoint, Event
 
@@ -111,10 +112,7 @@ class CompanionLink:
             await self._flush()
             delay = max(0.0, (self.endpoint.next_deadline_us() - self.now_us()) / 1e6)
             self._wake.clear()
-            try:
-                await asyncio.wait_for(self._wake.wait(), timeout=min(delay, 1.0))
-            except TimeoutError:
-                pass
+            await wait_event(self._wake, min(delay, 1.0))
 
     async def run(self) -> None:
         """Until :meth:`stop`: read, poll, write."""

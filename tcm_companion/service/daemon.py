@@ -40,6 +40,7 @@ import numpy as np
 from ..config import AppConfig
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult
+from ..io.aio import wait_event
 from ..io.allocator import trim_heap
 from ..io.cameras.base import CameraStats, Frame, FrameSource
 from ..io.transports import Transport, open_transport
@@ -270,9 +271,7 @@ class Daemon:
                         if remaining <= 0:
                             break
                         self._telemetry_event.clear()
-                        try:
-                            await asyncio.wait_for(self._telemetry_event.wait(), remaining / 1e6)
-                        except TimeoutError:
+                        if not await wait_event(self._telemetry_event, remaining / 1e6):
                             break
                         if comp.frame_deadline_us(cid, frame.t_capture_us) is None:
                             break

@@ -298,7 +298,8 @@ async def run_sitl(
             # and make those statuses look stale).
             mock_stop.set()
             with contextlib.suppress(Exception):
-                await asyncio.wait_for(mock_task, 2.0)
+                async with asyncio.timeout(2.0):
+                    await mock_task
             if writer is not None:
                 await asyncio.to_thread(writer.stop)
     finally:

@@ -35,8 +35,15 @@ def _frames(
 
 
 def _time_method(
-    config: AppConfig, sim: object, frames: list[tuple[int, int, np.ndarray]]
+    config: AppConfig,
+    sim: object,
+    frames: list[tuple[int, int, np.ndarray]],
+    gap_s: float = 0.0,
 ) -> dict[str, np.ndarray]:
+    """Per-stage ms of each frame after a warm-up; ``gap_s``: sleep before each frame
+    (``tools/pipeline_pacing_study.py``: the daemon's 40 ms between frames vs back to back)."""
+    import time
+
     from .replay import run_replay
 
     class _Frozen:
@@ -49,7 +56,10 @@ def _time_method(
         n_frames = len(frames)
 
         def iter_frames(self):  # type: ignore[no-untyped-def]
-            return iter(frames)
+            for f in frames:
+                if gap_s > 0:
+                    time.sleep(gap_s)
+                yield f
 
     pipe = Pipeline(sim.camera, config.pipeline)  # type: ignore[attr-defined]
     rows: dict[str, list[float]] = {s: [] for s in STAGES}

@@ -15,7 +15,9 @@ runs the applet in an embedded Lua 5.4 (``lupa``) with the bindings it uses, as
 - ``gcs:send_text`` becomes the mock's STATUSTEXT and is recorded in :attr:`texts`;
 - ``arming:is_armed()`` / ``vehicle:get_likely_flying()`` follow :attr:`armed` /
   :attr:`flying` (the mock is always airborne: True by default);
-- ``millis()`` is the mock's boot clock; parameters live in :attr:`params`.
+- ``millis()`` is the mock's boot clock; parameters live in :attr:`params`
+  (``param`` and ``Parameter`` are ``tools/ardupilot/fake_params.lua``, shared with the
+  harness).
 
 The applet runs every time it asks to (``return update, 50``) as the caller's time
 passes through :meth:`receive_data` and :meth:`poll`.
@@ -30,6 +32,8 @@ from typing import Any
 from .mock_autopilot import MockAutopilot, MockEvent
 
 APPLET_PATH = Path(__file__).resolve().parents[2] / "tools" / "ardupilot" / "tcm_avoid.lua"
+# param, Parameter and uint32_t_ud, faked once for both hosts (harness.lua loads it too).
+FAKE_PARAMS_PATH = APPLET_PATH.with_name("fake_params.lua")
 SCRIPT_IDS = (45100, 45101)
 COPTER_MODE_BRAKE = 17
 COPTER_MODE_GUIDED = 4
@@ -38,12 +42,7 @@ _QUEUE_MAX = 20
 
 # Lua side of the bindings: thin wrappers over the Python host object ``HOST``.
 _PRELUDE = r"""
-local HOST = ...
-local U32 = {}
-U32.__index = U32
-function U32:toint() return self.v end
-function U32:tofloat() return self.v + 0.0 end
-local function uint32(v) return setmetatable({ v = math.floor(v) & 0xFFFFFFFF }, U32) end
+local HOST, uint32 = ...
 
 function millis() return uint32(HOST.millis()) end
 
@@ -70,26 +69,6 @@ function arming:is_armed() return HOST.armed end
 FWVersion = {}
 function FWVersion:type() return 2 end
 
-local params = HOST.params
-local tables = {}
-param = {}
-function param:add_table(key, prefix, n) tables[key] = { prefix = prefix, n = n }; return true end
-function param:add_param(key, idx, name, default)
-  local t = tables[key]
-  if t == nil or idx < 1 or idx > t.n then return false end
-  local full = t.prefix .. name
-  if params[full] == nil then params[full] = default end
-  return true
-end
-function param:get(name) return params[name] end
-function param:set(name, v) params[name] = v; return true end
-local ParamUD = {}
-ParamUD.__index = ParamUD
-function ParamUD:get() return params[self.name] end
-function Parameter(name)
-  if params[name] == nil then error("no such parameter " .. name) end
-  return setmetatable({ name = name }, ParamUD)
-end
 """
 
 
@@ -178,7 +157,8 @@ class LuaAppletAutopilot:
         self.host.params = self.lua.table_from({"SYSID_THISMAV": mock.system_id})
         for k, v in (params or {}).items():
             self.host.params[k.encode()] = v
-        self.lua.execute(_PRELUDE.encode(), self.host)
+        uint32 = self.lua.execute(FAKE_PARAMS_PATH.read_bytes(), self.host.params)
+        self.lua.execute(_PRELUDE.encode(), self.host, uint32)
         chunk = self.lua.globals().loadfile(str(applet).encode())
         if chunk is None:
             raise RuntimeError(f"cannot load {applet}")

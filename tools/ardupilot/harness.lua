@@ -68,12 +68,9 @@ local function json_object(tbl)
   return "{" .. table.concat(parts, ",") .. "}"
 end
 
--- uint32_t_ud stand-in: docs.lua gives it :toint() and :tofloat()
-local U32 = {}
-U32.__index = U32
-function U32:toint() return self.v end
-function U32:tofloat() return self.v + 0.0 end
-local function uint32(v) return setmetatable({ v = math.floor(v) & 0xFFFFFFFF }, U32) end
+-- param, Parameter and uint32: shared with the SITL host (lua_applet.py)
+local here = arg[0]:match("^(.*)/") or "."
+local uint32 = assert(loadfile(here .. "/fake_params.lua"))(params)
 
 -- ---------------------------------------------------------------- bindings
 function millis() return uint32(now) end
@@ -110,32 +107,6 @@ function arming:is_armed() return state.armed end
 
 FWVersion = {}
 function FWVersion:type() return state.fwtype end
-
-param = {}
-local tables = {}
-function param:add_table(key, prefix, n)
-  tables[key] = { prefix = prefix, n = n }
-  return true
-end
-function param:add_param(key, idx, name, default)
-  local t = tables[key]
-  if t == nil or idx < 1 or idx > t.n then return false end
-  local full = t.prefix .. name
-  if #full > 16 then error("parameter name too long: " .. full) end
-  if params[full] == nil then params[full] = default end
-  return true
-end
-function param:get(name) return params[name] end
-function param:set(name, v) params[name] = v; return true end
-
-local ParamUD = {}
-ParamUD.__index = ParamUD
-function ParamUD:get() return params[self.name] end
-function ParamUD:set(v) params[self.name] = v; return true end
-function Parameter(name)
-  if params[name] == nil then error("Parameter(): no such parameter " .. tostring(name)) end
-  return setmetatable({ name = name }, ParamUD)
-end
 
 local prx_type = nil
 local Backend = {}

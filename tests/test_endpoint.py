@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import random
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -289,7 +290,69 @@ def test_collision_alarm_statustext_is_rate_limited() -> None:
     texts = [m.text for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
     alarms = [t for t in texts if "collision" in t]
     assert len(alarms) == 1 and "collision course track 3" in alarms[0]
-    assert ep.stats["statustext suppressed"] == 4
+    # one condition that holds: announced once, the later frames are not even new texts
+    assert ep.stats["statustext suppressed"] == 0 and len(ep.statustexts_queued) == 2
+
+
+def test_collision_statustext_once_per_condition_whatever_the_ttc() -> None:
+    # Seen on real ArduPilot: 504 "TCM: collision course ..." texts in ~2 minutes, because
+    # each carried a new TTC and the limit was per text. Now one per condition.
+    ep, ap = connected()
+    texts: list[str] = []
+    t = T0
+    for k in range(25 * 20):  # 20 s at 25 Hz, the TTC changing every frame
+        t = T0 + k * 40_000
+        ttc = 2.9 - 0.003 * (k % 400)
+        ep.send_frame(frame([obj(1, "unknown", 0.0, collision=True, ttc=ttc)], t), t)
+        ep.poll(t)
+        texts += [m.text for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
+    alarms = [x for x in texts if "collision course" in x]
+    assert len(alarms) == 1, alarms
+    # the condition clears after 2 s without an alarm; a new one (after the repeat time)
+    # is announced again, and a second track is a condition of its own
+    t += 11_000_000
+    ep.send_frame(
+        frame(
+            [
+                obj(1, "unknown", 0.0, collision=True, ttc=1.0),
+                obj(2, "moving", 40.0, collision=True, ttc=2.0),
+            ],
+            t,
+        ),
+        t,
+    )
+    for k in range(10):
+        ep.poll(t + k * 300_000)
+    later = [m.text for m in ap.receive(ep.data_to_send()) if m.get_type() == "STATUSTEXT"]
+    assert sorted(x.split(",")[0] for x in later if "collision" in x) == [
+        "TCM: collision course track 1",
+        "TCM: collision course track 2",
+    ]
+
+
+def test_status_carries_ttc_confidence_independent_of_state() -> None:
+    # Head-on: no TCM state (unknown, confidence 0) but a confident time to contact.
+    ep, ap = connected()
+    ep.receive_data(ap.attitude(BOOT0_MS), T0)
+    head_on = replace(
+        obj(5, "moving", 0.0, collision=True, ttc=1.8),
+        state="unknown",
+        reason="head-on",
+        ttc_confidence=0.83,
+    )
+    still = replace(obj(6, "stationary", 90.0), ttc_confidence=0.9)  # no ttc: 0
+    ep.send_frame(frame([head_on, still], T0 + 1000), T0 + 2000)
+    got = ap.receive(ep.data_to_send())
+    st = {m.track_id: m for m in got if m.get_type() == "TCM_OBJECT_STATUS"}
+    assert (
+        st[5].state == d.TCM_OBJECT_STATE_UNKNOWN and st[5].reason == d.TCM_UNKNOWN_REASON_HEAD_ON
+    )
+    assert st[5].confidence == 0 and st[5].ttc_confidence == 83
+    assert st[5].collision_course == 1 and st[5].ttc == pytest.approx(1.8)
+    assert st[6].ttc_confidence == 0 and st[6].confidence > 0
+    ep.send_health_now(T0 + 3000)
+    (h,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "TCM_PIPELINE_HEALTH"]
+    assert h.protocol == 2
 
 
 def test_signing_rejects_unsigned_and_wrong_key() -> None:

@@ -70,3 +70,15 @@ def test_fast_bearing_drift_is_a_near_miss_not_a_collision() -> None:
 def test_too_few_samples() -> None:
     t, alpha, b, _ = approach(10.0, 2.0, 3)
     assert math.isnan(estimate_ttc(t, alpha, b).ttc_s)
+
+
+def test_ttc_confidence_falls_with_noise_and_is_zero_without_ttc() -> None:
+    clean = estimate_ttc(*approach(10.0, 2.0, 12)[:3])
+    assert clean.confidence > 0.9
+    noisy = [estimate_ttc(*approach(8.0, 2.0, 12, noise=0.03, seed=s)[:3]) for s in range(20)]
+    conf = [e.confidence for e in noisy if math.isfinite(e.ttc_s)]
+    assert conf and 0.0 < np.median(conf) < clean.confidence
+    # the least significant approach the fit accepts (2 standard errors) is worth 0.5 or more
+    assert min(conf) >= 0.5 - 1e-9
+    receding = estimate_ttc(*approach(5.0, -1.0, 12)[:3])
+    assert math.isnan(receding.ttc_s) and receding.confidence == 0.0

@@ -89,6 +89,9 @@ class ObjectResult:
     ttc_s: float  # NaN when not approaching
     collision_course: bool
     miss_radii: float  # predicted miss distance in object radii (NaN if unknown)
+    # Confidence in ttc_s and collision_course (0..1), from the looming fit alone: a
+    # head-on object has no TCM state but may have a confident time to contact.
+    ttc_confidence: float = 0.0
 
     @property
     def disparity(self) -> float:
@@ -497,4 +500,5 @@ class Pipeline:
             ttc_s=ttc.ttc_s,
             collision_course=ttc.collision_course,
             miss_radii=ttc.miss_radii,
+            ttc_confidence=ttc.confidence,
         )

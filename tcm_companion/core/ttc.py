@@ -39,6 +39,18 @@ class TTCEstimate:
     slope_per_s: float  # d/dt ln sin α
     miss_radii: float  # predicted miss distance over object radius (NaN if unknown)
     collision_course: bool
+    # Relative standard error of the looming rate, and so of the time to contact
+    # (σ_τ/τ = σ_slope/slope); NaN when there is no time to contact.
+    rel_stderr: float = math.nan
+
+    @property
+    def confidence(self) -> float:
+        """Confidence in ``ttc_s`` and ``collision_course``, 0..1: ``1 - rel_stderr``
+        (0 when there is no time to contact). At the approach test's least significance
+        (slope = 2 standard errors) it is 0.5. Independent of the TCM state."""
+        if not math.isfinite(self.ttc_s) or not math.isfinite(self.rel_stderr):
+            return 0.0
+        return max(0.0, min(1.0, 1.0 - self.rel_stderr))
 
 
 @functools.lru_cache(maxsize=64)
@@ -90,6 +102,7 @@ def estimate_ttc(
     approaching = slope > 1.0 / config.max_ttc_s and slope > config.min_significance * stderr
     if not approaching:
         return TTCEstimate(math.nan, slope, math.nan, False)
+    rel = stderr / slope
     # A straight-line fit over the window measures the looming rate at the window's
     # middle (ln sin α is convex in time on an approach); contact is that much closer now.
     ttc = 1.0 / slope - float(t[-1] - np.median(t))
@@ -101,9 +114,9 @@ def estimate_ttc(
     b_last = np.median(b[-n3:], axis=0)
     dt = float(np.median(t[-n3:]) - np.median(t[:n3]))
     if dt <= 0:
-        return TTCEstimate(ttc, slope, math.nan, False)
+        return TTCEstimate(ttc, slope, math.nan, False, rel)
     cosang = float(np.dot(b_first, b_last) / (np.linalg.norm(b_first) * np.linalg.norm(b_last)))
     omega = math.acos(max(-1.0, min(1.0, cosang))) / dt
     miss = omega * ttc / math.sin(float(np.median(a[-n3:])))
     collision = miss < config.collision_miss_radii and ttc < config.collision_max_ttc_s
-    return TTCEstimate(ttc, slope, miss, collision)
+    return TTCEstimate(ttc, slope, miss, collision, rel)

@@ -65,7 +65,8 @@ class EndpointConfig:
     obstacle_interval_us: int = 100_000
     fresh_frame_us: int = 500_000  # obstacle outputs stop when frames are older
     statustext_min_interval_us: int = 250_000
-    statustext_repeat_us: int = 10_000_000  # the same text is not repeated within this
+    statustext_repeat_us: int = 10_000_000  # the same condition is not repeated within this
+    collision_clear_us: int = 2_000_000  # a track's collision condition ends this long after its last alarm
     statustext_queue: int = 16
 
 
@@ -211,7 +212,10 @@ class CompanionEndpoint:
         self._last_objects: tuple[ObjectResult, ...] = ()
         self._last_frame_us: int | None = None
         self._statustext: deque[_Statustext] = deque()
-        self._statustext_sent: dict[str, int] = {}
+        self._statustext_sent: dict[str, int] = {}  # condition -> when last queued
+        self._statustext_log: deque[str] = deque(maxlen=256)
+        # track id -> companion time of its last alarming frame (a collision condition)
+        self._collision_alarm_us: dict[int, int] = {}
         self._next_statustext = now_us
         self._threshold = threshold
 
@@ -608,19 +612,31 @@ class CompanionEndpoint:
 
     @property
     def statustexts_queued(self) -> list[str]:
-        """Every distinct STATUSTEXT this endpoint has queued (most recent last)."""
-        return sorted(self._statustext_sent, key=self._statustext_sent.__getitem__)
+        """The distinct STATUSTEXTs this endpoint queued lately (the last 256; most recent
+        last)."""
+        return list(dict.fromkeys(self._statustext_log))
 
-    def statustext(self, severity: int, text: str, now_us: int) -> bool:
-        """Queue a STATUSTEXT; dropped (False) if the same text went out recently."""
-        last = self._statustext_sent.get(text)
+    def statustext(self, severity: int, text: str, now_us: int, key: str | None = None) -> bool:
+        """Queue a STATUSTEXT; dropped (False) if the same condition went out recently.
+
+        A condition is ``key`` (default: the text itself). Texts that carry a changing
+        number (a TTC, a rate) must pass a key naming the condition, or each new number
+        would count as a new text and flood the ground station.
+        """
+        cond = text if key is None else key
+        last = self._statustext_sent.get(cond)
         if last is not None and now_us - last < self.config.statustext_repeat_us:
             self.stats["statustext suppressed"] += 1
             return False
         if len(self._statustext) >= self.config.statustext_queue:
             self.stats["statustext dropped"] += 1
             return False
-        self._statustext_sent[text] = now_us
+        if len(self._statustext_sent) >= 256:  # bounded: forget conditions long past
+            horizon = now_us - self.config.statustext_repeat_us
+            for k in [k for k, t in self._statustext_sent.items() if t < horizon]:
+                del self._statustext_sent[k]
+        self._statustext_sent[cond] = now_us
+        self._statustext_log.append(text)
         self._statustext.append(_Statustext(severity, text))
         return True
 
@@ -663,14 +679,34 @@ class CompanionEndpoint:
                 result.objects, self.vehicle_pos_ned_m, o.lat_deg, o.lon_deg, o.alt_m, radius, {}
             ):
                 self._send(traffic, now_us)
-        alarm = v["TCM_TTC_ALARM"]
+        self._announce_collisions(result, now_us)
+
+    def _announce_collisions(self, result: FrameResult, now_us: int) -> None:
+        """One STATUSTEXT per collision condition, not per frame or per TTC value.
+
+        A track's condition starts with its first alarming frame (collision course,
+        ``ttc`` below TCM_TTC_ALARM) and lasts until it has not alarmed for
+        ``collision_clear_us``; a new condition of the same track is announced at most
+        once per ``statustext_repeat_us``.
+        """
+        alarm = self.params.values["TCM_TTC_ALARM"]
+        clear_us = self.config.collision_clear_us
+        conds = self._collision_alarm_us
+        for tid in [t for t, last in conds.items() if now_us - last > clear_us]:
+            del conds[tid]
+        if alarm <= 0:
+            return
         for obj in result.objects:
-            if obj.collision_course and alarm > 0 and obj.ttc_s < alarm:
+            if not (obj.collision_course and obj.ttc_s < alarm):
+                continue
+            if obj.track_id not in conds:
                 self.statustext(
                     d.MAV_SEVERITY_WARNING,
                     f"TCM: collision course track {obj.track_id}, TTC {obj.ttc_s:.1f}s",
                     now_us,
+                    key=f"collision course track {obj.track_id}",
                 )
+            conds[obj.track_id] = now_us
 
     # -- timers --------------------------------------------------------------------------------
     def poll(self, now_us: int) -> list[Event]:
@@ -747,6 +783,7 @@ class CompanionEndpoint:
             log_state=h.log_state,
             timesync_offset_us=int(offset) if math.isfinite(offset) else 0,
             timesync_rtt_us=min(rtt, 0xFFFF) if rtt is not None else 0xFFFF,
+            protocol=outputs.PROTOCOL,
         )
 
     def next_deadline_us(self) -> int:

@@ -59,11 +59,25 @@ def object_range_m(obj: ObjectResult, object_radius_m: float) -> float:
     return NO_RANGE
 
 
+#: The meaning of our fields this companion follows (TCM_PIPELINE_HEALTH.protocol): 2 sends
+#: ttc_confidence and raises collision alarms whatever the motion state (docs/mavlink.md).
+PROTOCOL = 2
+
+
 def confidence_pct(obj: ObjectResult, threshold: float) -> int:
-    """How far the disparity is from the threshold, relative to it (0 when unknown)."""
+    """Confidence of the motion *state*: how far the disparity is from the threshold,
+    relative to it (0 when the state is unknown). Not about time to contact."""
     if obj.state == "unknown" or not math.isfinite(obj.disparity) or threshold <= 0:
         return 0
     return round(100 * min(1.0, abs(obj.disparity - threshold) / threshold))
+
+
+def ttc_confidence_pct(obj: ObjectResult) -> int:
+    """Confidence of ``ttc`` and ``collision_course`` (0 when there is no ttc): from the
+    looming fit, whatever the state, so a head-on object can raise an alarm."""
+    if not math.isfinite(obj.ttc_s):
+        return 0
+    return round(100 * max(0.0, min(1.0, obj.ttc_confidence)))
 
 
 def object_status(
@@ -86,6 +100,7 @@ def object_status(
         angular_radius=obj.angular_radius_rad,
         range=object_range_m(obj, object_radius_m),
         confidence=confidence_pct(obj, threshold),
+        ttc_confidence=ttc_confidence_pct(obj),
     )
 
 

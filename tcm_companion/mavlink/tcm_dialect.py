@@ -8279,22 +8279,22 @@ class MAVLink_tcm_object_status_message(MAVLink_message):
 
     id = MAVLINK_MSG_ID_TCM_OBJECT_STATUS
     msgname = "TCM_OBJECT_STATUS"
-    fieldnames = ["time_boot_ms", "track_id", "camera_id", "state", "reason", "disparity", "threshold", "ttc", "collision_course", "azimuth", "elevation", "angular_radius", "range", "confidence"]
-    ordered_fieldnames = ["time_boot_ms", "disparity", "threshold", "ttc", "azimuth", "elevation", "angular_radius", "range", "track_id", "camera_id", "state", "reason", "collision_course", "confidence"]
-    fieldtypes = ["uint32_t", "uint16_t", "uint8_t", "uint8_t", "uint8_t", "float", "float", "float", "uint8_t", "float", "float", "float", "float", "uint8_t"]
+    fieldnames = ["time_boot_ms", "track_id", "camera_id", "state", "reason", "disparity", "threshold", "ttc", "collision_course", "azimuth", "elevation", "angular_radius", "range", "confidence", "ttc_confidence"]
+    ordered_fieldnames = ["time_boot_ms", "disparity", "threshold", "ttc", "azimuth", "elevation", "angular_radius", "range", "track_id", "camera_id", "state", "reason", "collision_course", "confidence", "ttc_confidence"]
+    fieldtypes = ["uint32_t", "uint16_t", "uint8_t", "uint8_t", "uint8_t", "float", "float", "float", "uint8_t", "float", "float", "float", "float", "uint8_t", "uint8_t"]
     fielddisplays_by_name: Dict[str, str] = {}
     fieldenums_by_name: Dict[str, str] = {"state": "TCM_OBJECT_STATE", "reason": "TCM_UNKNOWN_REASON"}
-    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "ttc": "s", "azimuth": "rad", "elevation": "rad", "angular_radius": "rad", "range": "m", "confidence": "%"}
-    native_format = bytearray(b"<IfffffffHBBBBB")
-    orders = [0, 8, 9, 10, 11, 1, 2, 3, 12, 4, 5, 6, 7, 13]
-    lengths = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]
-    array_lengths = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "ttc": "s", "azimuth": "rad", "elevation": "rad", "angular_radius": "rad", "range": "m", "confidence": "%", "ttc_confidence": "%"}
+    native_format = bytearray(b"<IfffffffHBBBBBB")
+    orders = [0, 8, 9, 10, 11, 1, 2, 3, 12, 4, 5, 6, 7, 13, 14]
+    lengths = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]
+    array_lengths = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
     crc_extra = 111
-    unpacker = struct.Struct("<IfffffffHBBBBB")
+    unpacker = struct.Struct("<IfffffffHBBBBBB")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int):
+    def __init__(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0):
         MAVLink_message.__init__(self, MAVLink_tcm_object_status_message.id, MAVLink_tcm_object_status_message.msgname)
         self._fieldnames = MAVLink_tcm_object_status_message.fieldnames
         self._instance_field = MAVLink_tcm_object_status_message.instance_field
@@ -8313,9 +8313,10 @@ class MAVLink_tcm_object_status_message(MAVLink_message):
         self.angular_radius = angular_radius
         self.range = range
         self.confidence = confidence
+        self.ttc_confidence = ttc_confidence
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.disparity, self.threshold, self.ttc, self.azimuth, self.elevation, self.angular_radius, self.range, self.track_id, self.camera_id, self.state, self.reason, self.collision_course, self.confidence), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.disparity, self.threshold, self.ttc, self.azimuth, self.elevation, self.angular_radius, self.range, self.track_id, self.camera_id, self.state, self.reason, self.collision_course, self.confidence, self.ttc_confidence), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -8330,22 +8331,22 @@ class MAVLink_tcm_pipeline_health_message(MAVLink_message):
 
     id = MAVLINK_MSG_ID_TCM_PIPELINE_HEALTH
     msgname = "TCM_PIPELINE_HEALTH"
-    fieldnames = ["time_boot_ms", "frame_rate", "latency", "frames_dropped", "egomotion_source", "egomotion_quality", "health", "objects", "log_state", "timesync_offset_us", "timesync_rtt_us"]
-    ordered_fieldnames = ["timesync_offset_us", "time_boot_ms", "frame_rate", "latency", "frames_dropped", "health", "timesync_rtt_us", "egomotion_source", "egomotion_quality", "objects", "log_state"]
-    fieldtypes = ["uint32_t", "float", "float", "uint32_t", "uint8_t", "uint8_t", "uint32_t", "uint8_t", "uint8_t", "int64_t", "uint16_t"]
+    fieldnames = ["time_boot_ms", "frame_rate", "latency", "frames_dropped", "egomotion_source", "egomotion_quality", "health", "objects", "log_state", "timesync_offset_us", "timesync_rtt_us", "protocol"]
+    ordered_fieldnames = ["timesync_offset_us", "time_boot_ms", "frame_rate", "latency", "frames_dropped", "health", "timesync_rtt_us", "egomotion_source", "egomotion_quality", "objects", "log_state", "protocol"]
+    fieldtypes = ["uint32_t", "float", "float", "uint32_t", "uint8_t", "uint8_t", "uint32_t", "uint8_t", "uint8_t", "int64_t", "uint16_t", "uint8_t"]
     fielddisplays_by_name: Dict[str, str] = {"health": "bitmask"}
     fieldenums_by_name: Dict[str, str] = {"egomotion_source": "TCM_EGOMOTION_SOURCE", "health": "TCM_HEALTH_FLAGS", "log_state": "TCM_LOG_STATE"}
     fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "frame_rate": "Hz", "latency": "ms", "egomotion_quality": "%", "timesync_offset_us": "us", "timesync_rtt_us": "us"}
-    native_format = bytearray(b"<qIffIIHBBBB")
-    orders = [1, 2, 3, 4, 7, 8, 5, 9, 10, 0, 6]
-    lengths = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]
-    array_lengths = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+    native_format = bytearray(b"<qIffIIHBBBBB")
+    orders = [1, 2, 3, 4, 7, 8, 5, 9, 10, 0, 6, 11]
+    lengths = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]
+    array_lengths = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
     crc_extra = 34
-    unpacker = struct.Struct("<qIffIIHBBBB")
+    unpacker = struct.Struct("<qIffIIHBBBBB")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, time_boot_ms: int, frame_rate: float, latency: float, frames_dropped: int, egomotion_source: int, egomotion_quality: int, health: int, objects: int, log_state: int, timesync_offset_us: int, timesync_rtt_us: int):
+    def __init__(self, time_boot_ms: int, frame_rate: float, latency: float, frames_dropped: int, egomotion_source: int, egomotion_quality: int, health: int, objects: int, log_state: int, timesync_offset_us: int, timesync_rtt_us: int, protocol: int = 0):
         MAVLink_message.__init__(self, MAVLink_tcm_pipeline_health_message.id, MAVLink_tcm_pipeline_health_message.msgname)
         self._fieldnames = MAVLink_tcm_pipeline_health_message.fieldnames
         self._instance_field = MAVLink_tcm_pipeline_health_message.instance_field
@@ -8361,9 +8362,10 @@ class MAVLink_tcm_pipeline_health_message(MAVLink_message):
         self.log_state = log_state
         self.timesync_offset_us = timesync_offset_us
         self.timesync_rtt_us = timesync_rtt_us
+        self.protocol = protocol
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.timesync_offset_us, self.time_boot_ms, self.frame_rate, self.latency, self.frames_dropped, self.health, self.timesync_rtt_us, self.egomotion_source, self.egomotion_quality, self.objects, self.log_state), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.timesync_offset_us, self.time_boot_ms, self.frame_rate, self.latency, self.frames_dropped, self.health, self.timesync_rtt_us, self.egomotion_source, self.egomotion_quality, self.objects, self.log_state, self.protocol), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -23114,7 +23116,7 @@ class MAVLink(object):
         m._header = MAVLink_header(msgId, incompat_flags, compat_flags, mlen, seq, srcSystem, srcComponent)
         return m
 
-    def tcm_object_status_encode(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int) -> MAVLink_tcm_object_status_message:
+    def tcm_object_status_encode(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0) -> MAVLink_tcm_object_status_message:
         """
         One tracked object in one camera frame: moving or stationary (Triangle
         Closure Method) and time to contact. Sent for every tracked
@@ -23128,17 +23130,18 @@ class MAVLink(object):
         disparity                 : TCM disparity: |range ratio from looming - range ratio from the bearings|, dimensionless; moving when above threshold. NaN when not computed. (type:float)
         threshold                 : Disparity threshold in force, dimensionless. (type:float)
         ttc                       : Time to contact from looming (object centre range over closing speed). NaN when the object is not approaching. [s] (type:float)
-        collision_course          : 1: near-constant bearing with decreasing range (predicted miss within a few object radii), else 0. (type:uint8_t)
+        collision_course          : 1: near-constant bearing with decreasing range (predicted miss within a few object radii), else 0. From looming and bearing rate alone, whatever the state: a collision-course alarm is collision_course = 1 with 0 < ttc < the alarm time, judged by ttc_confidence. (type:uint8_t)
         azimuth                   : Bearing to the object's centre in the body frame (FRD): angle from the forward axis towards the right, in (-pi, pi]. [rad] (type:float)
         elevation                 : Bearing to the object's centre in the body frame (FRD): angle above the forward-right plane, positive up. [rad] (type:float)
         angular_radius            : Angular radius of the object as seen by the camera. [rad] (type:float)
         range                     : Range to the object's centre when known (stationary object and metric translation from the autopilot), else NaN. [m] (type:float)
-        confidence                : Confidence of the state, 0-100. [%] (type:uint8_t)
+        confidence                : Confidence of the motion state (state) only, 0-100: how far the TCM disparity lies from the threshold, relative to it. 0 when the state is unknown. It says nothing about ttc or collision_course: see ttc_confidence. [%] (type:uint8_t)
+        ttc_confidence            : Confidence of ttc and collision_course, 0-100: 100 x (1 - relative standard error of the looming rate that gives ttc). 0 when ttc is NaN. Independent of state: a head-on object (state unknown, reason HEAD_ON) has a valid ttc and collision_course. Since protocol 2; 0 from older companions. [%] (type:uint8_t)
 
         """
-        return MAVLink_tcm_object_status_message(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence)
+        return MAVLink_tcm_object_status_message(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence, ttc_confidence)
 
-    def tcm_object_status_send(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, force_mavlink1: bool = False) -> None:
+    def tcm_object_status_send(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0, force_mavlink1: bool = False) -> None:
         """
         One tracked object in one camera frame: moving or stationary (Triangle
         Closure Method) and time to contact. Sent for every tracked
@@ -23152,36 +23155,18 @@ class MAVLink(object):
         disparity                 : TCM disparity: |range ratio from looming - range ratio from the bearings|, dimensionless; moving when above threshold. NaN when not computed. (type:float)
         threshold                 : Disparity threshold in force, dimensionless. (type:float)
         ttc                       : Time to contact from looming (object centre range over closing speed). NaN when the object is not approaching. [s] (type:float)
-        collision_course          : 1: near-constant bearing with decreasing range (predicted miss within a few object radii), else 0. (type:uint8_t)
+        collision_course          : 1: near-constant bearing with decreasing range (predicted miss within a few object radii), else 0. From looming and bearing rate alone, whatever the state: a collision-course alarm is collision_course = 1 with 0 < ttc < the alarm time, judged by ttc_confidence. (type:uint8_t)
         azimuth                   : Bearing to the object's centre in the body frame (FRD): angle from the forward axis towards the right, in (-pi, pi]. [rad] (type:float)
         elevation                 : Bearing to the object's centre in the body frame (FRD): angle above the forward-right plane, positive up. [rad] (type:float)
         angular_radius            : Angular radius of the object as seen by the camera. [rad] (type:float)
         range                     : Range to the object's centre when known (stationary object and metric translation from the autopilot), else NaN. [m] (type:float)
-        confidence                : Confidence of the state, 0-100. [%] (type:uint8_t)
+        confidence                : Confidence of the motion state (state) only, 0-100: how far the TCM disparity lies from the threshold, relative to it. 0 when the state is unknown. It says nothing about ttc or collision_course: see ttc_confidence. [%] (type:uint8_t)
+        ttc_confidence            : Confidence of ttc and collision_course, 0-100: 100 x (1 - relative standard error of the looming rate that gives ttc). 0 when ttc is NaN. Independent of state: a head-on object (state unknown, reason HEAD_ON) has a valid ttc and collision_course. Since protocol 2; 0 from older companions. [%] (type:uint8_t)
 
         """
-        self.send(self.tcm_object_status_encode(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence), force_mavlink1=force_mavlink1)
+        self.send(self.tcm_object_status_encode(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence, ttc_confidence), force_mavlink1=force_mavlink1)
 
-    def tcm_pipeline_health_encode(self, time_boot_ms: int, frame_rate: float, latency: float, frames_dropped: int, egomotion_source: int, egomotion_quality: int, health: int, objects: int, log_state: int, timesync_offset_us: int, timesync_rtt_us: int) -> MAVLink_tcm_pipeline_health_message:
-        """
-        Health of the companion's detection pipeline, sent at 1-2 Hz.
-
-        time_boot_ms              : Autopilot boot time of this report (mapped through TIMESYNC). [ms] (type:uint32_t)
-        frame_rate                : Frames processed per second over the last report period. [Hz] (type:float)
-        latency                   : Median processing latency per frame over the last report period. [ms] (type:float)
-        frames_dropped            : Frames dropped since start (camera faster than processing, or unreadable). (type:uint32_t)
-        egomotion_source          : Source of the translation estimate in the last frame. (type:uint8_t, values:TCM_EGOMOTION_SOURCE)
-        egomotion_quality         : Share of recent frames with a usable translation estimate, 0-100. [%] (type:uint8_t)
-        health                    : Faults (set bits). (type:uint32_t, values:TCM_HEALTH_FLAGS)
-        objects                   : Objects tracked in the last frame. (type:uint8_t)
-        log_state                 : Flight log state. (type:uint8_t, values:TCM_LOG_STATE)
-        timesync_offset_us        : Companion clock minus autopilot boot clock, as estimated by TIMESYNC. [us] (type:int64_t)
-        timesync_rtt_us           : Last TIMESYNC round trip (UINT16_MAX if larger or unknown). [us] (type:uint16_t)
-
-        """
-        return MAVLink_tcm_pipeline_health_message(time_boot_ms, frame_rate, latency, frames_dropped, egomotion_source, egomotion_quality, health, objects, log_state, timesync_offset_us, timesync_rtt_us)
-
-    def tcm_pipeline_health_send(self, time_boot_ms: int, frame_rate: float, latency: float, frames_dropped: int, egomotion_source: int, egomotion_quality: int, health: int, objects: int, log_state: int, timesync_offset_us: int, timesync_rtt_us: int, force_mavlink1: bool = False) -> None:
+    def tcm_pipeline_health_encode(self, time_boot_ms: int, frame_rate: float, latency: float, frames_dropped: int, egomotion_source: int, egomotion_quality: int, health: int, objects: int, log_state: int, timesync_offset_us: int, timesync_rtt_us: int, protocol: int = 0) -> MAVLink_tcm_pipeline_health_message:
         """
         Health of the companion's detection pipeline, sent at 1-2 Hz.
 
@@ -23194,11 +23179,32 @@ class MAVLink(object):
         health                    : Faults (set bits). (type:uint32_t, values:TCM_HEALTH_FLAGS)
         objects                   : Objects tracked in the last frame. (type:uint8_t)
         log_state                 : Flight log state. (type:uint8_t, values:TCM_LOG_STATE)
-        timesync_offset_us        : Companion clock minus autopilot boot clock, as estimated by TIMESYNC. [us] (type:int64_t)
+        timesync_offset_us        : Companion clock minus autopilot boot clock, as estimated by TIMESYNC. Exceeds 2^31 when the two booted more than ~36 min apart: a decoder with 32-bit integers (ArduPilot Lua) must read it as two halves, low uint32 then high int32. [us] (type:int64_t)
         timesync_rtt_us           : Last TIMESYNC round trip (UINT16_MAX if larger or unknown). [us] (type:uint16_t)
+        protocol                  : Version of the meaning of this dialect's fields the companion follows (2: ttc_confidence is sent and collision alarms are independent of state). 0 from companions older than protocol 2. (type:uint8_t)
 
         """
-        self.send(self.tcm_pipeline_health_encode(time_boot_ms, frame_rate, latency, frames_dropped, egomotion_source, egomotion_quality, health, objects, log_state, timesync_offset_us, timesync_rtt_us), force_mavlink1=force_mavlink1)
+        return MAVLink_tcm_pipeline_health_message(time_boot_ms, frame_rate, latency, frames_dropped, egomotion_source, egomotion_quality, health, objects, log_state, timesync_offset_us, timesync_rtt_us, protocol)
+
+    def tcm_pipeline_health_send(self, time_boot_ms: int, frame_rate: float, latency: float, frames_dropped: int, egomotion_source: int, egomotion_quality: int, health: int, objects: int, log_state: int, timesync_offset_us: int, timesync_rtt_us: int, protocol: int = 0, force_mavlink1: bool = False) -> None:
+        """
+        Health of the companion's detection pipeline, sent at 1-2 Hz.
+
+        time_boot_ms              : Autopilot boot time of this report (mapped through TIMESYNC). [ms] (type:uint32_t)
+        frame_rate                : Frames processed per second over the last report period. [Hz] (type:float)
+        latency                   : Median processing latency per frame over the last report period. [ms] (type:float)
+        frames_dropped            : Frames dropped since start (camera faster than processing, or unreadable). (type:uint32_t)
+        egomotion_source          : Source of the translation estimate in the last frame. (type:uint8_t, values:TCM_EGOMOTION_SOURCE)
+        egomotion_quality         : Share of recent frames with a usable translation estimate, 0-100. [%] (type:uint8_t)
+        health                    : Faults (set bits). (type:uint32_t, values:TCM_HEALTH_FLAGS)
+        objects                   : Objects tracked in the last frame. (type:uint8_t)
+        log_state                 : Flight log state. (type:uint8_t, values:TCM_LOG_STATE)
+        timesync_offset_us        : Companion clock minus autopilot boot clock, as estimated by TIMESYNC. Exceeds 2^31 when the two booted more than ~36 min apart: a decoder with 32-bit integers (ArduPilot Lua) must read it as two halves, low uint32 then high int32. [us] (type:int64_t)
+        timesync_rtt_us           : Last TIMESYNC round trip (UINT16_MAX if larger or unknown). [us] (type:uint16_t)
+        protocol                  : Version of the meaning of this dialect's fields the companion follows (2: ttc_confidence is sent and collision alarms are independent of state). 0 from companions older than protocol 2. (type:uint8_t)
+
+        """
+        self.send(self.tcm_pipeline_health_encode(time_boot_ms, frame_rate, latency, frames_dropped, egomotion_source, egomotion_quality, health, objects, log_state, timesync_offset_us, timesync_rtt_us, protocol), force_mavlink1=force_mavlink1)
 
     def sys_status_encode(self, onboard_control_sensors_present: int, onboard_control_sensors_enabled: int, onboard_control_sensors_health: int, load: int, voltage_battery: int, current_battery: int, battery_remaining: int, drop_rate_comm: int, errors_comm: int, errors_count1: int, errors_count2: int, errors_count3: int, errors_count4: int, onboard_control_sensors_present_extended: int = 0, onboard_control_sensors_enabled_extended: int = 0, onboard_control_sensors_health_extended: int = 0) -> MAVLink_sys_status_message:
         """

@@ -154,7 +154,7 @@ class LuaAppletAutopilot:
         self.clock_ms = self._boot_ms()
         self.host = _Host(self)
         self.lua = lua54.LuaRuntime(encoding=None, unpack_returned_tuples=True)
-        self.host.params = self.lua.table_from({"SYSID_THISMAV": mock.system_id})
+        self.host.params = self.lua.table_from({"MAV_SYSID": mock.system_id})
         for k, v in (params or {}).items():
             self.host.params[k.encode()] = v
         uint32 = self.lua.execute(FAKE_PARAMS_PATH.read_bytes(), self.host.params)

@@ -32,7 +32,7 @@ Output lines:
 local applet_path = arg[1] or "tools/ardupilot/tcm_avoid.lua"
 
 local now = 10000 -- ms since boot
-local params = { SYSID_THISMAV = 1 }
+local params = { MAV_SYSID = 1 }  -- ArduPilot 4.7+ (SYSID_THISMAV before)
 local state = { armed = false, flying = false, mode = 0, setmode_ok = true, fwtype = 2 }
 local queue = {}
 local QUEUE_MAX = 20

@@ -33,23 +33,36 @@ local MSGID_OBJECT_STATUS = 45100
 local MSGID_PIPELINE_HEALTH = 45101
 local CRC_EXTRA_OBJECT_STATUS = 111
 local CRC_EXTRA_PIPELINE_HEALTH = 34
--- wire layout (fields sorted by type size, as MAVLink does), little-endian.
--- pymavlink native_format "<IfffffffHBBBBB"
-local FMT_OBJECT_STATUS = "<I4fffffffI2BBBBB"
+-- wire layout (fields sorted by type size, as MAVLink does, then the extension
+-- fields in XML order), little-endian.
+--
+-- ArduPilot builds Lua with 32-bit integers and 32-bit floats (LUA_32BITS):
+-- string.unpack of an 8-byte integer that does not fit raises "8-byte integer
+-- does not fit into Lua Integer" and ArduPilot removes the script. So no field is
+-- read wider than 4 bytes: TCM_PIPELINE_HEALTH's int64 timesync_offset_us is read
+-- as its two halves (low uint32, high int32; _lo and _hi below). A uint32 ("I4")
+-- above 2^31 reads as a negative integer there; time_boot_ms is only ever
+-- subtracted from another millisecond count, which wraps the same way.
+-- pymavlink native_format "<IfffffffHBBBBBB"
+local FMT_OBJECT_STATUS = "<I4fffffffI2BBBBBB"
 local FIELDS_OBJECT_STATUS = {
   "time_boot_ms", "disparity", "threshold", "ttc", "azimuth", "elevation",
   "angular_radius", "range", "track_id", "camera_id", "state", "reason",
-  "collision_course", "confidence",
+  "collision_course", "confidence", "ttc_confidence",
 }
-local LEN_OBJECT_STATUS = 39
--- pymavlink native_format "<qIffIIHBBBB"
-local FMT_PIPELINE_HEALTH = "<i8I4ffI4I4I2BBBB"
+local LEN_OBJECT_STATUS = 40
+-- pymavlink native_format "<qIffIIHBBBBB" (q read as I4 i4)
+local FMT_PIPELINE_HEALTH = "<I4i4I4ffI4I4I2BBBBB"
 local FIELDS_PIPELINE_HEALTH = {
-  "timesync_offset_us", "time_boot_ms", "frame_rate", "latency",
+  "timesync_offset_us_lo", "timesync_offset_us_hi", "time_boot_ms", "frame_rate", "latency",
   "frames_dropped", "health", "timesync_rtt_us", "egomotion_source",
-  "egomotion_quality", "objects", "log_state",
+  "egomotion_quality", "objects", "log_state", "protocol",
 }
-local LEN_PIPELINE_HEALTH = 34
+local LEN_PIPELINE_HEALTH = 35
+-- TCM_PIPELINE_HEALTH.protocol this applet needs: 2 sends ttc_confidence, on which
+-- collision alarms are judged (older companions send 0 there: no alarm).
+local PROTOCOL_MIN = 2
+local TWO_32 = 4294967296.0
 
 local MAGIC_V2 = 0xFD
 local STATE_STATIONARY = 1
@@ -96,14 +109,18 @@ local PARAM_DEFS = {
   { "ENABLE", 1 },     -- 0: ignore everything, 1: run
   { "ACTION", 1 },     -- 0 none, 1 warn, 2 BRAKE, 3 LOITER, 4 RTL
   { "TTC", 3.0 },      -- s: alarm on a collision course with ttc below this
-  { "MIN_CONF", 50 },  -- %: ignore statuses with lower confidence
-  { "SYSID", 0 },      -- companion system id; 0 = same as SYSID_THISMAV
+  { "MIN_CONF", 50 },  -- %: least ttc_confidence for an alarm (confidence for proximity)
+  { "SYSID", 0 },      -- companion system id; 0 = this vehicle's (MAV_SYSID)
   { "COMPID", 191 },   -- companion component id
   { "MAX_AGE", 500 },  -- ms: drop statuses whose time_boot_ms is older
   { "OBJ_TO", 500 },   -- ms: forget an object not heard of for this long
   { "SILENT", 1000 },  -- ms: companion silent this long -> no data, warn once
   { "TXT_MS", 2000 },  -- ms: the same warning text at most once per this
   { "PRX_IDX", -1 },   -- proximity backend instance for stationary objects, -1 off
+  -- hysteresis: once on, an alarm holds while a collision-course object has
+  -- ttc below TTC_CLR, and clears only after HOLD_MS without one
+  { "TTC_CLR", 4.5 },  -- s
+  { "HOLD_MS", 2000 }, -- ms
 }
 
 assert(param:add_table(PARAM_TABLE_KEY, PARAM_PREFIX, #PARAM_DEFS), "TCM: could not add param table")
@@ -178,6 +195,13 @@ local MSG_DEFS = {
 local stats = { rx = 0, bad_magic = 0, bad_len = 0, bad_crc = 0, bad_src = 0,
                 bad_id = 0, stale = 0, low_conf = 0, ok = 0 }
 
+-- a uint32 read by "I4" as a float, whatever the integer width (negative above
+-- 2^31 with 32-bit integers)
+local function u32_float(v)
+  if v < 0 then return v + TWO_32 end
+  return v + 0.0
+end
+
 --[[
 Parse one message as handed over by mavlink:receive_chan(): the firmware's
 raw mavlink_message_t (291 bytes), 1-based:
@@ -222,6 +246,10 @@ local function parse(raw, want_sys, want_comp)
     f[name] = values[i]
   end
   f.sysid, f.compid, f.seq = sysid, compid, raw:byte(7)
+  if def.kind == "health" then
+    -- int64 from its halves, as a float (coarse with 32-bit floats: display only)
+    f.timesync_offset_us = f.timesync_offset_us_hi * TWO_32 + u32_float(f.timesync_offset_us_lo)
+  end
   return def.kind, f
 end
 
@@ -232,7 +260,7 @@ end
 -- ---------------------------------------------------------------------------
 -- state
 -- ---------------------------------------------------------------------------
-local objects = {}        -- track_id -> {t=, ttc=, cc=, conf=, state=, ...}
+local objects = {}        -- track_id -> {t=, ttc=, cc=, ttc_conf=, state=, ...}
 local n_objects = 0
 local last_rx_ms = nil    -- last valid frame (either message)
 local start_ms = nil
@@ -241,6 +269,9 @@ local last_health = nil
 local acted_mode = nil    -- mode we switched to, while our action stands
 local stood_down = false  -- pilot changed mode after our action: wait for clear
 local alarm_active = false
+local alarm_hold_ms = nil -- last time an object kept the alarm on (hysteresis)
+local last_alarm_id = nil -- the object of the alarm's latest evidence
+local protocol_warned = false
 local last_attempt_ms = nil -- last refused set_mode, retried at most every TXT_MS
 local prx_backend = nil
 local prx_checked = false
@@ -270,6 +301,7 @@ local function store_object(f, now)
   o.ttc = f.ttc
   o.cc = f.collision_course
   o.conf = f.confidence
+  o.ttc_conf = f.ttc_confidence
   o.state = f.state
   o.az = f.azimuth
   o.el = f.elevation
@@ -287,18 +319,48 @@ local function expire_objects(now)
   end
 end
 
--- the most urgent alarming object, or nil
-local function find_alarm()
-  local ttc_max = pget("TTC")
+--[[
+What a collision-course alarm is. The evidence is looming and bearing alone: the
+companion's collision_course flag (near-constant bearing, closing) with a time to
+contact 0 < ttc < TCMA_TTC, judged by ttc_confidence (how well the looming fit
+determines ttc) >= TCMA_MIN_CONF. The motion state and its confidence do not enter:
+an object dead ahead (head-on) has no TCM state (unknown, reason HEAD_ON) but the
+most reliable looming there is, and it is the most dangerous case.
+Hysteresis: the alarm starts on one such status; it then holds while an object on a
+collision course has 0 < ttc < TCMA_TTC_CLR (same confidence test), and clears
+only after TCMA_HOLD_MS without one (a ttc estimate wandering across TCMA_TTC, or
+a few frames without the flag, do not end it).
+--]]
+local function evidence(o, ttc_max)
+  return o.cc == 1 and is_finite(o.ttc) and o.ttc > 0 and o.ttc < ttc_max
+    and (o.ttc_conf or 0) >= pget("MIN_CONF")
+end
+
+-- the most urgent object below ttc_max, or nil
+local function most_urgent(ttc_max)
   local best = nil
   for id, o in pairs(objects) do
-    if o.cc == 1 and is_finite(o.ttc) and o.ttc > 0 and o.ttc < ttc_max then
-      if best == nil or o.ttc < best.ttc then
-        best = { id = id, ttc = o.ttc, az = o.az }
-      end
+    if evidence(o, ttc_max) and (best == nil or o.ttc < best.ttc) then
+      best = { id = id, ttc = o.ttc, az = o.az }
     end
   end
   return best
+end
+
+-- the alarm with hysteresis in ttc and time: the alarming object, or nil
+local function find_alarm(now)
+  local alarm = most_urgent(pget("TTC"))
+  if alarm == nil and alarm_active then
+    alarm = most_urgent(math.max(pget("TTC"), pget("TTC_CLR")))
+  end
+  if alarm ~= nil then
+    alarm_hold_ms = now
+    return alarm
+  end
+  if alarm_active and alarm_hold_ms ~= nil and now - alarm_hold_ms <= pget("HOLD_MS") then
+    return { id = last_alarm_id, ttc = math.huge, held = true }
+  end
+  return nil
 end
 
 -- ---------------------------------------------------------------------------
@@ -335,7 +397,8 @@ end
 local function want_source()
   local sys = pget("SYSID")
   if sys <= 0 then
-    sys = param:get("SYSID_THISMAV") or 1
+    -- MAV_SYSID since ArduPilot 4.7; SYSID_THISMAV before
+    sys = param:get("MAV_SYSID") or param:get("SYSID_THISMAV") or 1
   end
   return math.floor(sys), math.floor(pget("COMPID"))
 end
@@ -361,18 +424,21 @@ local function receive(now)
       else
         last_rx_ms = now
         if TCM_TEST_HOOK then TCM_TEST_HOOK(kind, f) end
+        stats.ok = stats.ok + 1
         if kind == "status" then
-          if f.confidence < min_conf then
-            stats.low_conf = stats.low_conf + 1
-          else
-            stats.ok = stats.ok + 1
-            store_object(f, now)
-            push_proximity(f)
+          if f.collision_course == 1 and f.ttc_confidence < min_conf then
+            stats.low_conf = stats.low_conf + 1  -- weak evidence: never an alarm
           end
+          store_object(f, now)
+          if f.confidence >= min_conf then push_proximity(f) end
         else
-          stats.ok = stats.ok + 1
           if last_health ~= nil and f.health ~= last_health.health and f.health ~= 0 then
             say(SEV_WARNING, string.format("companion fault 0x%X", f.health), "health", now)
+          end
+          if f.protocol < PROTOCOL_MIN and not protocol_warned then
+            protocol_warned = true
+            say(SEV_WARNING, string.format(
+              "companion protocol %d < %d: update it, no alarms", f.protocol, PROTOCOL_MIN), nil, now)
           end
           last_health = f
         end
@@ -394,6 +460,16 @@ local function act(alarm, now)
   local action = math.floor(pget("ACTION"))
   if action == ACTION_NONE then return end
   local mode = vehicle:get_mode()
+  if alarm.held then
+    -- no fresh evidence, the alarm only holds: keep what was done, start nothing
+    if acted_mode ~= nil and mode ~= acted_mode then
+      acted_mode = nil
+      stood_down = true
+      say(SEV_NOTICE, "pilot mode change, standing down", nil, now)
+    end
+    return
+  end
+  last_alarm_id = alarm.id
   local text = string.format("collision course id %d ttc %.1fs", alarm.id, alarm.ttc)
 
   -- our action stands; the pilot changing mode takes over
@@ -452,12 +528,13 @@ local function update()
     say(SEV_INFO, "companion data resumed", nil, now)
   end
 
-  local alarm = find_alarm()
+  local alarm = find_alarm(now)
   if alarm ~= nil then
     alarm_active = true
     act(alarm, now)
   elseif alarm_active then
     alarm_active = false
+    alarm_hold_ms = nil
     if acted_mode ~= nil or stood_down then
       say(SEV_INFO, "collision alarm clear", nil, now)
     end

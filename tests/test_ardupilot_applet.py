@@ -1,0 +1,112 @@
+"""The applet (tools/ardupilot/tcm_avoid.lua) inside the real firmware, fed hand-made frames.
+
+ArduCopter SITL (ArduPilot's own build: 32-bit Lua, its scripting bindings, its MAVLink
+routing) loads the applet from ``scripts/``; a companion link on SERIAL1, as (1, 191),
+sends frames from OUR encoder. The daemon-driven flights are in
+tests/test_ardupilot_flight.py. Skipped with a one-line reason when the binary is absent.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tcm_companion.mavlink import tcm_dialect as d
+from tcm_companion.mavlink.codec import MavlinkCodec
+from tcm_companion.sim.ardupilot_sitl import ArduPilotSitl, MavlinkTcpClient, skip_reason
+
+ROOT = Path(__file__).resolve().parents[1]
+APPLET = ROOT / "tools" / "ardupilot" / "tcm_avoid.lua"
+SKIP_REASON = skip_reason()
+pytestmark = [
+    pytest.mark.skipif(bool(SKIP_REASON), reason=SKIP_REASON or "ArduCopter SITL present"),
+    pytest.mark.timeout(120),
+]
+
+
+@pytest.fixture(scope="module")
+def sitl() -> Iterator[ArduPilotSitl]:
+    with ArduPilotSitl(params={"SCR_ENABLE": 1}, scripts=[APPLET]) as s:
+        yield s
+
+
+@pytest.fixture(scope="module")
+def companion(sitl: ArduPilotSitl) -> MavlinkTcpClient:
+    return sitl.connect(1)  # (1, 191), heartbeats as an onboard controller
+
+
+def _boot_ms(sitl: ArduPilotSitl) -> int:
+    boot = sitl.gcs.autopilot_boot_ms()
+    assert boot is not None, "no time-stamped message from the autopilot"
+    return boot
+
+
+def _health(boot_ms: int, offset_us: int) -> d.MAVLink_tcm_pipeline_health_message:
+    return d.MAVLink_tcm_pipeline_health_message(
+        time_boot_ms=boot_ms & 0xFFFFFFFF,
+        frame_rate=25.0,
+        latency=6.0,
+        frames_dropped=0,
+        egomotion_source=d.TCM_EGOMOTION_SOURCE_FUSED,
+        egomotion_quality=100,
+        health=0,
+        objects=1,
+        log_state=d.TCM_LOG_STATE_RECORDING,
+        timesync_offset_us=offset_us,
+        timesync_rtt_us=4400,
+        protocol=2,
+    )
+
+
+def _alarm(boot_ms: int, **kw: float) -> d.MAVLink_tcm_object_status_message:
+    v: dict[str, float] = dict(
+        time_boot_ms=boot_ms & 0xFFFFFFFF,
+        track_id=7,
+        camera_id=0,
+        state=d.TCM_OBJECT_STATE_UNKNOWN,
+        reason=d.TCM_UNKNOWN_REASON_HEAD_ON,
+        disparity=math.nan,
+        threshold=0.09,
+        ttc=1.5,
+        collision_course=1,
+        azimuth=0.0,
+        elevation=0.0,
+        angular_radius=0.05,
+        range=math.nan,
+        confidence=0,
+        ttc_confidence=90,
+    )
+    v.update(kw)
+    return d.MAVLink_tcm_object_status_message(**v)  # type: ignore[arg-type]
+
+
+def test_applet_loads_with_its_parameters(sitl: ArduPilotSitl) -> None:
+    sitl.wait_statustext(r"^TCM: avoid applet loaded", 10.0, since_s=0.0)
+    assert sitl.get_param("TCMA_ACTION") == 1.0  # warn, by default
+    assert sitl.get_param("TCMA_TTC_CLR") == pytest.approx(4.5)
+    assert sitl.get_param("TCMA_HOLD_MS") == 2000.0
+
+
+@pytest.mark.parametrize("hours", [2.2, -5.0])
+def test_applet_survives_hour_scale_clock_offset(
+    sitl: ArduPilotSitl, companion: MavlinkTcpClient, hours: float
+) -> None:
+    # On this firmware the old applet died 0.15 s after loading: "8-byte integer does not
+    # fit into Lua Integer", on the first TCM_PIPELINE_HEALTH of a companion booted more
+    # than ~36 min apart from the autopilot (its int64 timesync_offset_us past 2^31).
+    codec = MavlinkCodec(1, 191)
+    t0 = time.monotonic()
+    offset_us = int(hours * 3600e6)
+    for k in range(6):  # 3 s at 2 Hz, the offset drifting a little
+        companion.send_bytes(codec.encode(_health(_boot_ms(sitl), offset_us + 37 * k)))
+        time.sleep(0.5)
+    # still running and decoding: an alarm on the ground (disarmed) is a warning text
+    companion.send_bytes(codec.encode(_alarm(_boot_ms(sitl))))
+    warn = sitl.wait_statustext(r"^TCM: collision course id 7 ttc 1\.5s$", 3.0, since_s=t0)
+    lua_errors = [t.text for t in sitl.statustexts(t0) if t.text.startswith("Lua")]
+    assert lua_errors == []
+    assert warn.t_s > t0

@@ -66,7 +66,7 @@ class EndpointConfig:
     fresh_frame_us: int = 500_000  # obstacle outputs stop when frames are older
     statustext_min_interval_us: int = 250_000
     statustext_repeat_us: int = 10_000_000  # the same condition is not repeated within this
-    collision_clear_us: int = 2_000_000  # a track's collision condition ends this long after its last alarm
+    collision_clear_us: int = 2_000_000  # a track's collision ends this long after its last alarm
     statustext_queue: int = 16
 
 

@@ -250,6 +250,18 @@ def write_summary_json(path: str, summary: Any) -> None:
 def cmd_sitl(args: argparse.Namespace) -> int:
     _setup_logging(args.log_level)
     config = config_from_args(args)
+    if args.autopilot == "ardupilot":
+        return _run_ardupilot(args, config)
+    from ..sim.scenarios import SCENARIO_NAMES
+
+    if args.scenario and args.scenario not in SCENARIO_NAMES:
+        print(
+            f"error: --scenario {args.scenario} is not one of the mock autopilot's"
+            f" ({', '.join(SCENARIO_NAMES)}); CROSSING and HEADON of --autopilot ardupilot"
+            " are flown by the real firmware",
+            file=sys.stderr,
+        )
+        return 2
     if args.scenario:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
@@ -257,6 +269,34 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     return _run_sitl_until(
         config, args.duration, _StatusPrinter(every=args.status_every), log_dir=args.log
     )
+
+
+def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
+    """``sitl --autopilot ardupilot``: real ArduCopter SITL with the applet, one flight."""
+    from ..sim.ardupilot_sitl import skip_reason
+    from .sitl_ardupilot import SCENES
+
+    scene = (args.scenario or "CROSSING").lower()
+    if scene not in SCENES:
+        print(
+            f"error: with --autopilot ardupilot, --scenario is one of"
+            f" {', '.join(s.upper() for s in SCENES)}, got {args.scenario}",
+            file=sys.stderr,
+        )
+        return 2
+    missing = skip_reason()
+    if missing:
+        print(f"error: {missing}", file=sys.stderr)
+        return 2
+
+    async def main() -> int:
+        from .sitl_ardupilot import run_ardupilot_sitl
+
+        report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode)
+        print("\n".join(report.lines()))
+        return 0 if report.ok else 1
+
+    return _run_loop(main)
 
 
 def _run_sitl_until(
@@ -317,10 +357,34 @@ def add_parsers(sub: Any) -> None:
     from ..sim.scenarios import SCENARIO_NAMES
 
     p = sub.add_parser(
-        "sitl", help="mock autopilot + simulated camera + the daemon over loopback UDP"
+        "sitl",
+        help="the daemon with a simulated camera against the mock autopilot (loopback UDP),"
+        " or against real ArduCopter SITL (--autopilot ardupilot)",
     )
     add_config_arguments(p)
-    p.add_argument("--scenario", type=str.upper, choices=SCENARIO_NAMES, default=None)
+    p.add_argument(
+        "--autopilot",
+        choices=("mock", "ardupilot"),
+        default="mock",
+        help="mock: the built-in mock autopilot flies a scenario (default); ardupilot:"
+        " ArduPilot's own SITL binary ($TCM_ARDUPILOT_SITL, or ../shared/ardupilot-sitl)"
+        " with the Lua applet, flown in GUIDED at a ball on a collision course",
+    )
+    p.add_argument(
+        "--scenario",
+        type=str.upper,
+        default=None,
+        metavar="NAME",
+        help=f"mock: {', '.join(SCENARIO_NAMES)} (default T90); ardupilot: CROSSING"
+        " (default) or HEADON",
+    )
+    p.add_argument(
+        "--pilot-mode",
+        default=None,
+        metavar="MODE",
+        help="ardupilot: the pilot switches to this mode (e.g. LOITER) 1 s after the applet"
+        " braked; the applet must stand down",
+    )
     p.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument(

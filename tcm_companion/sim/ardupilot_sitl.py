@@ -1178,9 +1178,13 @@ class ArduPilotSitl:
             mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, _msg_id(msg_type), interval_us
         )
 
-    def set_param(self, name: str, value: float, timeout_s: float = 5.0) -> float:
-        """PARAM_SET, re-sent every second until a PARAM_VALUE with the new value comes back;
-        returns it. :class:`SitlError` if the autopilot keeps another value."""
+    def set_param(
+        self, name: str, value: float, timeout_s: float = 5.0, target_component: int = 1
+    ) -> float:
+        """PARAM_SET to ``target_component`` of system 1 (the autopilot, or e.g. the companion
+        at 191 through the autopilot's routing), re-sent every second until a PARAM_VALUE
+        with the new value comes back; returns it. :class:`SitlError` if it keeps another
+        value."""
         gcs = self.gcs
         deadline = time.monotonic() + timeout_s
         last: Received | None = None
@@ -1188,7 +1192,7 @@ class ArduPilotSitl:
             since = time.monotonic()
             gcs.send(
                 gcs.mav.param_set_encode(
-                    1, 1, name.encode(), float(value), mavlink2.MAV_PARAM_TYPE_REAL32
+                    1, target_component, name.encode(), float(value), mavlink2.MAV_PARAM_TYPE_REAL32
                 )
             )
             try:
@@ -1197,7 +1201,7 @@ class ArduPilotSitl:
                     min(1.0, max(0.05, deadline - time.monotonic())),
                     lambda m: m.param_id == name,
                     since_s=since,
-                    src=(1, 1),
+                    src=(1, target_component),
                 )
             except SitlTimeout:
                 continue

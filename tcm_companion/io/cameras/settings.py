@@ -28,8 +28,15 @@ if TYPE_CHECKING:
     from ...core.camera import CameraModel, Fisheye
     from .sim import TruthFn
 
-SourceKind = Literal["sim", "device", "gstreamer", "file", "frames", "scenario", "dual_fisheye"]
+SourceKind = Literal[
+    "sim", "sim_autopilot", "device", "gstreamer", "file", "frames", "scenario", "dual_fisheye"
+]
 SOURCE_KINDS: tuple[str, ...] = typing.get_args(SourceKind)
+#: What ``source = "sim_autopilot"`` puts in the field (:mod:`tcm_companion.sim.autopilot_camera`).
+SimSceneKind = Literal["crossing", "headon", "static"]
+SIM_SCENE_KINDS: tuple[str, ...] = typing.get_args(SimSceneKind)
+#: One ball of ``sim_scene = "static"``: ``(n_m, e_m, d_m, radius_m)`` in the autopilot's local NED.
+StaticBall = tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -114,6 +121,15 @@ class CameraSettings:
     loop: bool = False  # file/frames: start again at the end
     sim_noise_dn: float = 2.5  # simulator sensor noise σ, digital numbers (0..255 scale)
     sim_seed: int = 0  # simulator noise and flight-plan variant
+    # source = "sim_autopilot": the field rendered from any autopilot's pose over MAVLink.
+    sim_url: str = "tcp:127.0.0.1:5763"  # its own link to the autopilot (SITL SERIAL2)
+    sim_scene: SimSceneKind = "crossing"  # "crossing", "headon" or "static"
+    sim_contact_s: float = 7.0  # s from launch to the predicted contact (crossing, headon)
+    sim_ball_speed_mps: float = 1.5  # crossing: the ball's ground speed, m/s
+    sim_side_deg: float = 90.0  # crossing: side it comes from, deg clockwise from the track
+    sim_heading_deg: float = 0.0  # the field's track direction, deg clockwise from north
+    sim_ball_radius_m: float = 0.375  # crossing / headon ball radius, m
+    sim_static_balls: tuple[StaticBall, ...] = ()  # static: [[n_m, e_m, d_m, radius_m], ...]
     front: FisheyeCameraSettings = field(default_factory=FisheyeCameraSettings)  # dual_fisheye
     back: FisheyeCameraSettings = field(default_factory=_back_default)  # dual_fisheye
 
@@ -136,6 +152,7 @@ class CameraSettings:
             raise ValueError(f"camera.sim_noise_dn must be >= 0, got {self.sim_noise_dn!r}")
         if self.sim_seed < 0:
             raise ValueError(f"camera.sim_seed must be >= 0, got {self.sim_seed!r}")
+        self._check_sim_autopilot()
         if self.source == "device" and not self.device.strip():
             raise ValueError("camera.device must not be empty when camera.source = 'device'")
         if self.source == "gstreamer" and not self.pipeline.strip():
@@ -146,6 +163,41 @@ class CameraSettings:
             raise ValueError(
                 f"camera.back.device must differ from camera.front.device (both {self.front.device!r})"
             )
+
+    def _check_sim_autopilot(self) -> None:
+        if self.sim_scene not in SIM_SCENE_KINDS:
+            raise ValueError(
+                f"camera.sim_scene must be one of {list(SIM_SCENE_KINDS)}, got {self.sim_scene!r}"
+            )
+        if self.source == "sim_autopilot" and ":" not in self.sim_url.strip():
+            raise ValueError(
+                "camera.sim_url must be a link URL such as 'tcp:127.0.0.1:5763' or "
+                f"'udpin:0.0.0.0:14560' when camera.source = 'sim_autopilot', got {self.sim_url!r}"
+            )
+        ranges = (
+            ("sim_contact_s", 1.0, 120.0, "s"),
+            ("sim_ball_speed_mps", 0.0, 50.0, "m/s"),
+            ("sim_side_deg", -180.0, 180.0, "degrees"),
+            ("sim_heading_deg", -360.0, 360.0, "degrees"),
+        )
+        for name, lo, hi, unit in ranges:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and lo <= value <= hi):
+                raise ValueError(f"camera.{name} must be in [{lo:g}, {hi:g}] {unit}, got {value!r}")
+        if not (math.isfinite(self.sim_ball_radius_m) and 0.0 < self.sim_ball_radius_m <= 10.0):
+            raise ValueError(
+                f"camera.sim_ball_radius_m must be in (0, 10] m, got {self.sim_ball_radius_m!r}"
+            )
+        for i, ball in enumerate(self.sim_static_balls):
+            if (
+                len(ball) != 4
+                or not all(math.isfinite(x) for x in ball)
+                or not 0.0 < ball[3] <= 10.0
+            ):
+                raise ValueError(
+                    f"camera.sim_static_balls[{i}] must be [n_m, e_m, d_m, radius_m] with "
+                    f"finite numbers and 0 < radius_m <= 10, got {ball!r}"
+                )
 
     @property
     def exposure_or_auto(self) -> float | None:
@@ -172,6 +224,34 @@ def _sim(
 
     return SimulatedCamera(
         cam, scenario, truth_us, fps=s.fps, seed=s.sim_seed, noise_dn=s.sim_noise_dn
+    )
+
+
+def _sim_autopilot(
+    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+) -> FrameSource:
+    from ...sim.autopilot_camera import AutopilotSimCamera, SceneSettings, check_url
+
+    try:
+        check_url(s.sim_url)
+    except CameraError as exc:
+        raise CameraError(f"camera.sim_url: {exc}") from None
+    scene = SceneSettings(
+        kind=s.sim_scene,
+        contact_s=s.sim_contact_s,
+        ball_speed_mps=s.sim_ball_speed_mps,
+        side_deg=s.sim_side_deg,
+        ball_radius_m=s.sim_ball_radius_m,
+        static_balls=s.sim_static_balls,
+    )
+    return AutopilotSimCamera(
+        cam,
+        s.sim_url,
+        scene,
+        fps=s.fps,
+        heading_deg=s.sim_heading_deg,
+        seed=s.sim_seed,
+        noise_dn=s.sim_noise_dn,
     )
 
 
@@ -268,6 +348,7 @@ def _dual_fisheye(
 
 BUILDERS: dict[str, _Builder] = {
     "sim": _sim,
+    "sim_autopilot": _sim_autopilot,
     "device": _device,
     "gstreamer": _gstreamer,
     "file": _file,
@@ -287,7 +368,8 @@ def open_source(
     """Build (not open) the source ``settings.source`` for images of ``camera_model``'s size.
 
     ``truth_us`` (``t_us -> (scenario_t_s, pos_ned_m, R_ned_from_body)``) and
-    ``scenario`` are for the simulator only. Raises :class:`CameraError` naming the
+    ``scenario`` are for the simulator (``"sim"``) only; ``"sim_autopilot"`` takes its
+    pose from the autopilot at ``sim_url`` instead. Raises :class:`CameraError` naming the
     setting at fault; the device itself is opened later, by the reader thread.
     """
     try:

@@ -1,0 +1,164 @@
+"""The daemon flies against real ArduCopter SITL, with the applet loaded in the firmware.
+
+No hand-made frames: the daemon (on SERIAL1) sees a simulated ball through a camera that
+renders the field from the pose the firmware reports (SERIAL2), and its own statuses make
+the applet in the firmware switch to BRAKE. One SITL instance flies the three flights
+in turn (north, south, north, so the vehicle stays in the field's clear area); the
+proximity and parameter checks use a second one, on the ground. Every flight prints its
+report (pytest -s, or on failure). Skipped with a one-line reason when the binary is
+absent (``$TCM_ARDUPILOT_SITL``, ``../shared/ardupilot-sitl``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from tcm_companion.config import AppConfig
+from tcm_companion.service.sitl_ardupilot import (
+    APPLET,
+    SITL_PARAMS,
+    FlightPlanAP,
+    FlightReport,
+    fly_scene,
+)
+from tcm_companion.sim.ardupilot_sitl import ArduPilotSitl, skip_reason
+from tcm_companion.sim.autopilot_camera import SceneSettings
+
+SKIP_REASON = skip_reason()
+pytestmark = [
+    pytest.mark.skipif(bool(SKIP_REASON), reason=SKIP_REASON or "ArduCopter SITL present"),
+    pytest.mark.timeout(150),
+]
+
+
+@pytest.fixture(scope="module")
+def flying() -> Iterator[ArduPilotSitl]:
+    with ArduPilotSitl(params=SITL_PARAMS, scripts=[APPLET]) as sitl:
+        yield sitl
+
+
+def _fly(sitl: ArduPilotSitl, plan: FlightPlanAP, tmp_path: Path) -> FlightReport:
+    report = asyncio.run(fly_scene(AppConfig(), sitl, plan, state_dir=str(tmp_path)))
+    print("\n".join(report.lines()))
+    return report
+
+
+def _assert_braked_for_the_alarm(r: FlightReport) -> None:
+    lines = "\n".join(r.lines())
+    assert r.launch is not None, lines
+    assert r.alarms, lines
+    assert r.brake_s is not None, lines
+    # within 0.5 s of the daemon's first alarming status (the applet runs every 50 ms)
+    assert r.alarm_to_brake_s is not None and 0.0 <= r.alarm_to_brake_s <= 0.5, lines
+    assert r.brake_text.startswith(f"TCM: collision course id {r.alarms[0].track_id} "), lines
+    assert r.left_brake_while_alarm == [], lines  # braked for as long as the alarm held
+    assert not any(t.startswith("Lua") for _, t in r.texts), lines
+    assert r.summary is not None and r.summary.frames_balance, lines
+
+
+def test_crossing_collision_course_brakes(flying: ArduPilotSitl, tmp_path: Path) -> None:
+    r = _fly(flying, FlightPlanAP(SceneSettings("crossing"), heading_deg=0.0), tmp_path)
+    _assert_braked_for_the_alarm(r)
+    assert r.states.get("moving", 0) > r.states.get("stationary", 0), "\n".join(r.lines())
+    assert r.min_clearance_m > 0.5  # it braked in time: no contact
+    assert r.ok, "\n".join(r.lines())
+
+
+def test_headon_brakes_although_the_state_is_unknown(flying: ArduPilotSitl, tmp_path: Path) -> None:
+    r = _fly(flying, FlightPlanAP(SceneSettings("headon"), heading_deg=180.0), tmp_path)
+    _assert_braked_for_the_alarm(r)
+    first = r.alarms[0]
+    assert (first.state, first.reason) == ("unknown", "head-on"), "\n".join(r.lines())
+    assert r.min_clearance_m > 0.5
+    # the alarm holds and then clears (the vehicle stopped short of the ball)
+    assert r.alarm_held_s is not None and r.alarm_held_s > 0.5, "\n".join(r.lines())
+    assert r.ok, "\n".join(r.lines())
+
+
+def test_pilot_mode_change_makes_the_applet_stand_down(
+    flying: ArduPilotSitl, tmp_path: Path
+) -> None:
+    plan = FlightPlanAP(
+        SceneSettings("headon"), heading_deg=0.0, pilot_mode="LOITER", pilot_after_s=0.3
+    )
+    r = _fly(flying, plan, tmp_path)
+    lines = "\n".join(r.lines())
+    assert r.brake_s is not None and r.pilot_mode_s is not None, lines
+    assert r.stand_down_text_s is not None and r.stand_down_text_s >= r.pilot_mode_s, lines
+    # the pilot's mode stands: the applet never switches back to BRAKE
+    after = [m for t, m in r.modes if t > r.pilot_mode_s]
+    assert after and after[-1] == "LOITER" and "BRAKE" not in after, (after, lines)
+    assert r.ok, lines
+
+
+def test_proximity_and_parameters_through_ardupilot(tmp_path: Path) -> None:
+    """OBSTACLE_DISTANCE from the daemon makes PRX1 healthy, and stopping the daemon makes it
+    unhealthy; the daemon's TCM_* parameters are read and set from the ground station's
+    link, through ArduPilot's routing."""
+    from tcm_companion.io.transports import open_transport
+    from tcm_companion.mavlink.link import monotonic_us
+    from tcm_companion.mavlink.setup import make_endpoint, resolve_state_paths
+    from tcm_companion.service.daemon import CameraInput, Daemon
+    from tcm_companion.sim.autopilot_camera import AutopilotSimCamera
+
+    params = {**SITL_PARAMS, "PRX1_TYPE": 2}
+
+    async def scenario(sitl: ArduPilotSitl) -> dict[str, object]:
+        config = AppConfig()
+        settings = resolve_state_paths(config.mavlink, str(tmp_path))
+        cam = config.camera
+        camera = AutopilotSimCamera(cam.model, sitl.serial2_url, SceneSettings("static"))
+        endpoint, _ = make_endpoint(settings, monotonic_us())
+        link = open_transport(sitl.serial1_url)
+        await link.open()
+        daemon = Daemon(
+            replace(config, mavlink=settings),
+            [CameraInput(cam.name, cam.model, camera)],
+            transport=link,
+            endpoint=endpoint,
+        )
+        stop = asyncio.Event()
+        task = asyncio.create_task(daemon.run(stop))
+        out: dict[str, object] = {}
+        try:
+            # the ground station reads our parameter through ArduPilot (component 191) ...
+            thresh = await asyncio.to_thread(sitl.get_param, "TCM_THRESH", 191, 10.0)
+            out["TCM_THRESH"] = thresh
+            out["healthy_before"] = sitl.proximity_healthy()
+            # ... and sets one: OBSTACLE_DISTANCE on
+            t_set = time.monotonic()
+            await asyncio.to_thread(sitl.set_param, "TCM_OUT_OBST", 1, 10.0, 191)
+            out["daemon_value"] = endpoint.params.values["TCM_OUT_OBST"]
+            await asyncio.to_thread(
+                sitl.gcs.wait_for, lambda: sitl.proximity_healthy() is True, 10.0, "PRX healthy"
+            )
+            out["healthy_after_s"] = time.monotonic() - t_set
+        finally:
+            stop.set()
+            await task
+            await link.close()
+        t_stop = time.monotonic()
+        await asyncio.to_thread(
+            sitl.gcs.wait_for, lambda: sitl.proximity_healthy() is False, 5.0, "PRX unhealthy"
+        )
+        out["unhealthy_after_s"] = time.monotonic() - t_stop
+        return out
+
+    with ArduPilotSitl(params=params, scripts=[APPLET]) as sitl:
+        out = asyncio.run(scenario(sitl))
+    print(out)
+    assert out["TCM_THRESH"] == pytest.approx(
+        AppConfig().pipeline.classifier.tcm_threshold, rel=1e-6
+    )
+    assert out["healthy_before"] is False
+    assert out["daemon_value"] == 1
+    assert isinstance(out["healthy_after_s"], float) and out["healthy_after_s"] < 5.0
+    assert isinstance(out["unhealthy_after_s"], float) and out["unhealthy_after_s"] < 3.0
+    assert math.isfinite(out["unhealthy_after_s"])

@@ -3,16 +3,41 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# Every package the venv gets, pinned with hashes: the dependencies and the dev extra of
+# pyproject.toml plus pip and setuptools (its `bootstrap` group). `make lock` writes it.
+LOCK   := requirements.lock
+UV     := uv==0.13.9
 
-.PHONY: run demo test lint typecheck venv clean eval bench interop-env
+.PHONY: run demo test lint typecheck venv lock clean eval bench interop-env
 
 venv: $(STAMP)
 
-$(STAMP): pyproject.toml
+## The locked versions, then the package itself (editable, no dependencies of its own).
+## pip's own output is the progress: one line per package collected, then the install.
+## (The editable step takes 2 s and is quiet: it would only print setuptools' notice
+## about editable installs.)
+$(STAMP): pyproject.toml $(LOCK)
+	@echo "make: installing the packages pinned in $(LOCK) into $(VENV) (~50 packages, ~800 MB: about a minute)"
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --disable-pip-version-check --require-hashes --no-deps -r $(LOCK)
+	@echo "make: installing tcm-companion itself (editable)"
+	$(BIN)/python -m pip install --disable-pip-version-check --quiet --no-deps --no-build-isolation -e .
+	@$(BIN)/python -m pip check || { echo "make: $(LOCK) does not satisfy pyproject.toml: run 'make lock'" >&2; exit 1; }
 	touch $(STAMP)
+	@echo "make: $(VENV) is ready"
+
+## Re-resolve $(LOCK) from pyproject.toml's ranges with uv (in a throwaway venv), for every
+## platform and Python >= 3.11, keeping the pinned versions that still fit. To move to newer
+## releases: make lock LOCK_FLAGS=--upgrade (or LOCK_FLAGS='--upgrade-package numpy').
+## Changing numpy, scipy or opencv-python-headless changes results in the last digits:
+## re-record the reference logs (tests/data/logs/README.md).
+lock:
+	@echo "make: resolving $(LOCK) from pyproject.toml with $(UV) (~10 s)"
+	@tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && \
+	$(PYTHON) -m venv "$$tmp" && "$$tmp/bin/python" -m pip install --quiet '$(UV)' && \
+	"$$tmp/bin/uv" pip compile pyproject.toml --extra dev --group bootstrap \
+	    --universal --fork-strategy fewest --python-version 3.11 --generate-hashes \
+	    --custom-compile-command 'make lock' --quiet $(LOCK_FLAGS) -o $(LOCK)
 
 ## Main job on the built-in simulated default: the daemon in SITL (mock autopilot +
 ## simulated camera over loopback UDP) for 20 s, then accuracy, latency and faults.

@@ -24,6 +24,7 @@ APPLET = ROOT / "tools" / "ardupilot" / "tcm_avoid.lua"
 SKIP_REASON = skip_reason()
 pytestmark = [
     pytest.mark.skipif(bool(SKIP_REASON), reason=SKIP_REASON or "ArduCopter SITL present"),
+    pytest.mark.xdist_group("sitl"),  # real time: one at a time (see tests/test_daemon.py)
     pytest.mark.timeout(120),
 ]
 
@@ -110,3 +111,24 @@ def test_applet_survives_hour_scale_clock_offset(
     lua_errors = [t.text for t in sitl.statustexts(t0) if t.text.startswith("Lua")]
     assert lua_errors == []
     assert warn.t_s > t0
+
+
+def test_ground_station_sees_companion_data_flowing(
+    sitl: ArduPilotSitl, companion: MavlinkTcpClient
+) -> None:
+    # the applet's NAMED_VALUE_FLOATs reach the ground station's link from the autopilot
+    codec = MavlinkCodec(1, 191)
+    t0 = time.monotonic()
+    for _ in range(8):
+        companion.send_bytes(codec.encode(_health(_boot_ms(sitl), 0)))
+        time.sleep(0.25)
+    rx = sitl.gcs.wait_message(
+        "NAMED_VALUE_FLOAT",
+        3.0,
+        lambda m: m.name == "TCM_RX" and m.value >= 1.0,
+        since_s=t0,
+        src=(1, 1),
+    )
+    assert 1.0 <= rx.msg.value <= 6.0  # health at 4 Hz
+    names = {m.msg.name for m in sitl.gcs.messages("NAMED_VALUE_FLOAT", since_s=t0)}
+    assert {"TCM_RX", "TCM_OBJ", "TCM_TTC", "TCM_ALARM"} <= names

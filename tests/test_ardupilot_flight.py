@@ -34,13 +34,18 @@ from tcm_companion.sim.autopilot_camera import SceneSettings
 SKIP_REASON = skip_reason()
 pytestmark = [
     pytest.mark.skipif(bool(SKIP_REASON), reason=SKIP_REASON or "ArduCopter SITL present"),
+    pytest.mark.xdist_group("sitl"),  # real time: one at a time (see tests/test_daemon.py)
     pytest.mark.timeout(150),
 ]
 
 
+#: ADS-B in over MAVLink and AP_Avoidance on (its default action: report)
+ADSB_PARAMS = {"ADSB_TYPE": 1, "AVD_ENABLE": 1}
+
+
 @pytest.fixture(scope="module")
 def flying() -> Iterator[ArduPilotSitl]:
-    with ArduPilotSitl(params=SITL_PARAMS, scripts=[APPLET]) as sitl:
+    with ArduPilotSitl(params={**SITL_PARAMS, **ADSB_PARAMS}, scripts=[APPLET]) as sitl:
         yield sitl
 
 
@@ -64,11 +69,22 @@ def _assert_braked_for_the_alarm(r: FlightReport) -> None:
 
 
 def test_crossing_collision_course_brakes(flying: ArduPilotSitl, tmp_path: Path) -> None:
-    r = _fly(flying, FlightPlanAP(SceneSettings("crossing"), heading_deg=0.0), tmp_path)
+    # ... and our ADSB_VEHICLE for the moving ball (range from its known radius) reaches
+    # AP_Avoidance, which rates it a threat (COLLISION from the autopilot, our ICAO id)
+    plan = FlightPlanAP(
+        SceneSettings("crossing"),
+        heading_deg=0.0,
+        companion_params=(("TCM_OUT_ADSB", 1), ("TCM_OBJ_RADIUS", 0.375)),
+    )
+    r = _fly(flying, plan, tmp_path)
+    lines = "\n".join(r.lines())
     _assert_braked_for_the_alarm(r)
-    assert r.states.get("moving", 0) > r.states.get("stationary", 0), "\n".join(r.lines())
+    assert r.states.get("moving", 0) > r.states.get("stationary", 0), lines
     assert r.min_clearance_m > 0.5  # it braked in time: no contact
-    assert r.ok, "\n".join(r.lines())
+    ids = {ident for _, ident, _, _ in r.collisions}
+    assert 0x7C0000 + r.alarms[0].track_id in ids, lines
+    assert max(threat for _, _, threat, _ in r.collisions) >= 1, lines  # LOW or above
+    assert r.ok, lines
 
 
 def test_headon_brakes_although_the_state_is_unknown(flying: ArduPilotSitl, tmp_path: Path) -> None:

@@ -2,12 +2,12 @@
 
 One SITL instance is shared by the module (booted once, ~4.5 s); the tests run in file order
 but each brings the vehicle into the state it needs (proximity data flowing, flying), so any
-one of them can run alone. That matters under ``-n 2 --dist loadgroup``: with pytest 9.2 and
-pytest-xdist 3.8 the ``xdist_group`` mark has no effect (xdist sets ``item._nodeid``, which
-pytest 9 no longer reads), so each worker may boot its own instance; the runner gives them
-different instance numbers. Skipped with a one-line reason when the binary is absent
-(``$TCM_ARDUPILOT_SITL`` or ``../shared/ardupilot-sitl``). The numbers quoted in the
-docstrings were measured on a 2-core x86-64 machine (ArduCopter V4.8.0-dev, 1b34668c).
+one of them can run alone. Like every real-time test they are in the xdist group "sitl", so
+under ``-n 2 --dist loadgroup`` they run on one worker, one at a time (pytest is held below 9:
+pytest 9 ignores the node ids pytest-xdist 3.8 rewrites for groups). Skipped with a one-line
+reason when the binary is absent (``$TCM_ARDUPILOT_SITL`` or ``../shared/ardupilot-sitl``).
+The numbers quoted in the docstrings were measured on a 2-core x86-64 machine (ArduCopter
+V4.8.0-dev, 1b34668c).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from tcm_companion.sim.ardupilot_sitl import (
 SKIP_REASON = skip_reason()
 pytestmark = [
     pytest.mark.skipif(bool(SKIP_REASON), reason=SKIP_REASON or "ArduCopter SITL present"),
-    pytest.mark.xdist_group("ardupilot"),
+    pytest.mark.xdist_group("sitl"),  # real time: one at a time
     pytest.mark.timeout(120),
 ]
 

@@ -615,6 +615,27 @@ def test_health_fault_announced_on_change():
     assert r.stats["ok"] == 6
 
 
+def test_gcs_sees_data_flowing_and_the_alarm_as_named_values():
+    # statuses at 25 Hz from 10.0 s: no alarm until 11.5 s, then an alarm until 12.5 s,
+    # then the companion goes quiet
+    s = armed_scenario(2).stream(1500, collision_course=0).stream(1000, ttc=2.0).run(4000)
+    r = s.execute()
+    by_t: dict[int, dict[str, float]] = {}
+    for line in r.lines:
+        if line.startswith("NAMED "):
+            _, t, name, value = line.split()
+            by_t.setdefault(int(t), {})[name] = float(value)
+    assert sorted(by_t) == list(range(10050, 17050, 1000))  # once a second, from the first update
+    assert all(set(x) == {"TCM_RX", "TCM_OBJ", "TCM_TTC", "TCM_ALARM"} for x in by_t.values())
+    flowing = by_t[11050]
+    assert flowing["TCM_RX"] == pytest.approx(25, abs=2) and flowing["TCM_OBJ"] == 1
+    assert flowing["TCM_TTC"] == -1 and flowing["TCM_ALARM"] == 0
+    alarm = by_t[12050]
+    assert alarm["TCM_TTC"] == pytest.approx(2.0) and alarm["TCM_ALARM"] == 1
+    quiet = by_t[16050]
+    assert quiet["TCM_RX"] == 0 and quiet["TCM_OBJ"] == 0 and quiet["TCM_ALARM"] == 0
+
+
 def test_stationary_objects_pushed_to_scripting_proximity_backend():
     s = Scenario().cmd("prx_type 15").param("TCMA_PRX_IDX", 0)
     s.status(state=1, range=6.5, azimuth=math.radians(30), elevation=math.radians(-10)).run(60)

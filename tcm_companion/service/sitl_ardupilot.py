@@ -83,6 +83,8 @@ class FlightPlanAP:
     watch_s: float = 8.0
     ttc_alarm_s: float = 3.0  # TCMA_TTC
     min_conf_pct: int = 50  # TCMA_MIN_CONF
+    # the daemon's TCM_* parameters, set from the ground station through ArduPilot
+    companion_params: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -202,6 +204,9 @@ class FlightReport:
     pilot_mode_s: float | None  # when the "pilot" switched mode
     modes: list[tuple[float, str]]  # (t, mode) from the first BRAKE on
     texts: list[tuple[float, str]]  # every STATUSTEXT seen, from t0 on
+    # AP_Avoidance's COLLISION reports (t, id, threat_level, action): the firmware's view of
+    # our ADSB_VEHICLE (TCM_OUT_ADSB) with ADSB_TYPE = 1 and AVD_ENABLE = 1
+    collisions: list[tuple[float, int, int, int]]
     min_clearance_m: float
     states: dict[str, int]
     matched_frames: int
@@ -305,6 +310,12 @@ class FlightReport:
                 else f"; LEFT BRAKE: {self.left_brake_while_alarm}"
             )
         )
+        if self.collisions:
+            t, ident, threat, action = self.collisions[0]
+            out.append(
+                f"  AP_Avoidance: COLLISION id {ident:#x} threat {threat} action {action}"
+                f" {at(t)} ({len(self.collisions)} reports)"
+            )
         if self.pilot_mode_s is not None:
             out.append(
                 f"  pilot switched to {self.plan.pilot_mode} {at(self.pilot_mode_s)}; applet"
@@ -398,6 +409,8 @@ async def fly_scene(
             task.result()  # raise what stopped it
         for name, value in APPLET_PARAMS.items():
             await asyncio.to_thread(sitl.set_param, name, value)
+        for name, value in plan.companion_params:
+            await asyncio.to_thread(sitl.set_param, name, value, 10.0, endpoint.component_id)
         await asyncio.to_thread(sitl.set_param, "TCMA_TTC", plan.ttc_alarm_s)
         await asyncio.to_thread(sitl.set_param, "TCMA_MIN_CONF", plan.min_conf_pct)
         if sitl.armed:
@@ -467,6 +480,10 @@ async def fly_scene(
         pilot_mode_s=pilot_t,
         modes=modes,
         texts=texts,
+        collisions=[
+            (m.t_s, int(m.msg.id), int(m.msg.threat_level), int(m.msg.action))
+            for m in sitl.gcs.messages("COLLISION", since_s=t0)
+        ],
         min_clearance_m=recorder.min_clearance_m,
         states=dict(recorder.states),
         matched_frames=recorder.matched,

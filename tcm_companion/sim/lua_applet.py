@@ -57,6 +57,7 @@ end
 
 gcs = {}
 function gcs:send_text(sev, text) HOST.send_text(sev, text) end
+function gcs:send_named_float(name, value) HOST.send_named_float(name, value) end
 
 vehicle = {}
 function vehicle:get_mode() return HOST.get_mode() end
@@ -114,6 +115,10 @@ class _Host:
         self._o.texts.append((self._o.clock_ms, int(severity), s))
         self._o.mock._statustext(int(severity), s)  # the mock's own STATUSTEXT path
 
+    def send_named_float(self, name: Any, value: float) -> None:
+        key = name.decode() if isinstance(name, bytes) else str(name)
+        self._o.named_values[key] = float(value)  # the latest NAMED_VALUE_FLOAT of each name
+
     def get_mode(self) -> int:
         if self._o.mock.braking is not None:
             return COPTER_MODE_BRAKE
@@ -146,6 +151,7 @@ class LuaAppletAutopilot:
         self.registered: set[int] = set()
         self.queue: list[tuple[bytes, int]] = []
         self.texts: list[tuple[int, int, str]] = []
+        self.named_values: dict[str, float] = {}
         self.mode_requests: list[int] = []
         self.events: list[MockEvent] = []
         self.mode = COPTER_MODE_GUIDED

@@ -25,7 +25,7 @@ Commands (one per line, '#' comments):
   run MS                 run the scheduler for MS of simulated time
   stats                  print the applet's receive counters
 Output lines:
-  LOADED / TEXT t sev "text" / SET_MODE t mode ok / PRX t dist yaw pitch /
+  LOADED / TEXT t sev "text" / NAMED t name value / SET_MODE t mode ok / PRX t dist yaw pitch /
   FIELDS {json} / STATS {json} / ERROR msg
 --]]
 
@@ -91,6 +91,10 @@ end
 gcs = {}
 function gcs:send_text(sev, text)
   emit(string.format("TEXT %d %d %q", now, sev, text))
+end
+function gcs:send_named_float(name, value)
+  assert(#name <= 10, "NAMED_VALUE_FLOAT name longer than 10: " .. name)
+  emit(string.format("NAMED %d %s %.3f", now, name, value))
 end
 
 vehicle = {}

@@ -89,6 +89,7 @@ local ACTION_MODE = { [2] = MODE.BRAKE, [3] = MODE.LOITER, [4] = MODE.RTL }
 local SEV_CRITICAL, SEV_WARNING, SEV_NOTICE, SEV_INFO = 2, 4, 5, 6
 
 local UPDATE_MS = 50         -- scheduling period
+local REPORT_MS = 1000       -- NAMED_VALUE_FLOATs for the GCS: data flowing, alarm
 local MAX_MSGS_PER_UPDATE = 20  -- bounded work per update
 local MAX_OBJECTS = 32       -- bounded per-object table
 local RX_QUEUE = 20
@@ -503,6 +504,31 @@ local function act(alarm, now)
   end
 end
 
+--[[
+What a ground station sees of the applet (besides its texts), once a second, as
+NAMED_VALUE_FLOAT from the autopilot (Mission Planner: Status tab; QGroundControl:
+MAVLink Inspector; MAVProxy: graph NAMED_VALUE_FLOAT):
+  TCM_RX    valid TCM frames received per second (0: no companion data)
+  TCM_OBJ   objects currently known
+  TCM_TTC   the most urgent collision-course time to contact, s (-1: none)
+  TCM_ALARM 1 while a collision alarm holds, else 0
+--]]
+local last_report_ms = nil
+local ok_at_report = 0
+
+local function report(now)
+  if last_report_ms ~= nil and now - last_report_ms < REPORT_MS then return end
+  local dt = last_report_ms and (now - last_report_ms) or REPORT_MS
+  last_report_ms = now
+  local rate = (stats.ok - ok_at_report) * 1000.0 / math.max(dt, 1)
+  ok_at_report = stats.ok
+  local urgent = most_urgent(math.huge)
+  gcs:send_named_float("TCM_RX", rate)
+  gcs:send_named_float("TCM_OBJ", n_objects)
+  gcs:send_named_float("TCM_TTC", urgent and urgent.ttc or -1)
+  gcs:send_named_float("TCM_ALARM", alarm_active and 1 or 0)
+end
+
 local function update()
   local now = now_ms()
   if start_ms == nil then start_ms = now end
@@ -543,6 +569,7 @@ local function update()
   elseif acted_mode == nil then
     stood_down = false
   end
+  report(now)
   return update, UPDATE_MS
 end
 

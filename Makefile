@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
 UV     := uv==0.13.9
 
-.PHONY: run demo test lint typecheck venv lock clean eval bench interop-env
+.PHONY: run demo test lint typecheck venv lock lua32 clean eval bench interop-env
 
 venv: $(STAMP)
 
@@ -59,7 +59,15 @@ typecheck: $(STAMP)
 interop-env: $(STAMP)
 	$(BIN)/python tools/interop_env.py --quiet
 
+## ArduPilot's kind of Lua (32-bit integers and floats), for the applet's tests: Lua 5.4
+## from PyPI's lupa sdist (pinned by hash), compiled with LUA_32BITS (~15 s, once).
+lua32: $(BIN)/lua5.4-32
+
+$(BIN)/lua5.4-32: tools/ardupilot/build_lua32.py | $(STAMP)
+	$(BIN)/python tools/ardupilot/build_lua32.py --out $@
+
 test: lint typecheck
+	@$(MAKE) -s lua32 || echo "make: no 32-bit Lua (offline?): the applet's 32-bit checks will skip; retry with make lua32"
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
 eval: $(STAMP)

@@ -227,6 +227,14 @@ class FlightReport:
         return self.alarms[0].t_mono_us / 1e6 if self.alarms else None
 
     @property
+    def first_alarm_truth(self) -> TraceRow | None:
+        """The truth at the first alarming frame (true range and time to contact)."""
+        if not self.alarms:
+            return None
+        t = self.alarms[0].t_capture_us
+        return next((row for row in self.trace if row.t_capture_us == t), None)
+
+    @property
     def brake_s(self) -> float | None:
         """When the vehicle was in BRAKE: the earlier of its heartbeat and the applet's text."""
         ts = [t for t in (self.brake_heartbeat_s, self.brake_text_s) if t is not None]
@@ -288,6 +296,12 @@ class FlightReport:
                 + f"; {len(self.alarms)} alarming frames over"
                 f" {(self.alarms[-1].t_mono_us - a.t_mono_us) / 1e6:.2f} s"
             )
+            truth = self.first_alarm_truth
+            if truth is not None:
+                out.append(
+                    f"  truth then: range {truth.range_m:.1f} m, time to contact"
+                    f" {truth.ttc_true_s:.2f} s (centre range over closing speed)"
+                )
         else:
             out.append("  the daemon never sent an alarming status")
         d = self.alarm_to_brake_s

@@ -12,7 +12,8 @@ Install: copy to APM/scripts on the SD card, SCR_ENABLE=1, reboot (README.md).
 Binding names are checked against ArduPilot libraries/AP_Scripting/docs/docs.lua
 (commit stored in the project notes; see README.md "Bindings used"):
   mavlink:init, mavlink:register_rx_msgid, mavlink:receive_chan,
-  gcs:send_text, vehicle:get_mode, vehicle:set_mode, vehicle:get_likely_flying,
+  gcs:send_text, gcs:send_named_float, vehicle:get_mode, vehicle:set_mode,
+  vehicle:get_likely_flying,
   arming:is_armed, millis, param:add_table, param:add_param, param:get,
   Parameter, Parameter_ud:get, FWVersion:type, proximity:get_backend,
   AP_Proximity_Backend_ud:set_distance_min_max,

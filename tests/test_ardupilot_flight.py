@@ -15,7 +15,6 @@ import asyncio
 import math
 import time
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -118,35 +117,18 @@ def test_proximity_and_parameters_through_ardupilot(tmp_path: Path) -> None:
     """OBSTACLE_DISTANCE from the daemon makes PRX1 healthy, and stopping the daemon makes it
     unhealthy; the daemon's TCM_* parameters are read and set from the ground station's
     link, through ArduPilot's routing."""
-    from tcm_companion.io.transports import open_transport
-    from tcm_companion.mavlink.link import monotonic_us
-    from tcm_companion.mavlink.setup import make_endpoint, resolve_state_paths
-    from tcm_companion.service.daemon import CameraInput, Daemon
+    from tcm_companion.service.sitl_ardupilot import daemon_on_sitl
     from tcm_companion.sim.autopilot_camera import AutopilotSimCamera
 
     params = {**SITL_PARAMS, "PRX1_TYPE": 2}
 
     async def scenario(sitl: ArduPilotSitl) -> dict[str, object]:
         config = AppConfig()
-        settings = resolve_state_paths(config.mavlink, str(tmp_path))
-        cam = config.camera
-        camera = AutopilotSimCamera(cam.model, sitl.serial2_url, SceneSettings("static"))
-        endpoint, _ = make_endpoint(settings, monotonic_us())
-        link = open_transport(sitl.serial1_url)
-        await link.open()
-        daemon = Daemon(
-            replace(config, mavlink=settings),
-            [CameraInput(cam.name, cam.model, camera)],
-            transport=link,
-            endpoint=endpoint,
-        )
-        stop = asyncio.Event()
-        task = asyncio.create_task(daemon.run(stop))
+        camera = AutopilotSimCamera(config.camera.model, sitl.serial2_url, SceneSettings("static"))
         out: dict[str, object] = {}
-        try:
+        async with daemon_on_sitl(config, sitl, camera, str(tmp_path)) as (task, endpoint):
             # the ground station reads our parameter through ArduPilot (component 191) ...
-            thresh = await asyncio.to_thread(sitl.get_param, "TCM_THRESH", 191, 10.0)
-            out["TCM_THRESH"] = thresh
+            out["TCM_THRESH"] = await asyncio.to_thread(sitl.get_param, "TCM_THRESH", 191, 10.0)
             out["healthy_before"] = sitl.proximity_healthy()
             # ... and sets one: OBSTACLE_DISTANCE on
             t_set = time.monotonic()
@@ -156,10 +138,7 @@ def test_proximity_and_parameters_through_ardupilot(tmp_path: Path) -> None:
                 sitl.gcs.wait_for, lambda: sitl.proximity_healthy() is True, 10.0, "PRX healthy"
             )
             out["healthy_after_s"] = time.monotonic() - t_set
-        finally:
-            stop.set()
-            await task
-            await link.close()
+        task.result()  # the daemon ended cleanly
         t_stop = time.monotonic()
         await asyncio.to_thread(
             sitl.gcs.wait_for, lambda: sitl.proximity_healthy() is False, 5.0, "PRX unhealthy"

@@ -34,7 +34,7 @@ import re
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -45,6 +45,7 @@ from ..config import AppConfig
 from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult
 from ..io.transports import open_transport
+from ..mavlink.endpoint import CompanionEndpoint
 from ..mavlink.link import monotonic_us
 from ..mavlink.setup import make_endpoint, resolve_state_paths
 from ..sim.ardupilot_sitl import ArduPilotSitl, mode_name, mode_number
@@ -61,6 +62,7 @@ BRAKE = mode_number("BRAKE")
 SITL_PARAMS: dict[str, float] = {"SCR_ENABLE": 1, "PRX1_TYPE": 0}
 APPLET_PARAMS: dict[str, float] = {"TCMA_ACTION": 2}
 MATCH_GATE_RAD = math.radians(6.0)
+CLEAR_TEXT = r"^TCM: collision alarm clear"
 
 
 @dataclass(frozen=True)
@@ -372,6 +374,41 @@ def _text_time(texts: list[tuple[float, str]], pattern: str) -> tuple[float | No
     return None, ""
 
 
+@contextlib.asynccontextmanager
+async def daemon_on_sitl(
+    config: AppConfig,
+    sitl: ArduPilotSitl,
+    camera: AutopilotSimCamera,
+    state_dir: str,
+    **daemon_kwargs: Any,
+) -> AsyncIterator[tuple[asyncio.Task[DaemonSummary], CompanionEndpoint]]:
+    """The daemon on the SITL's SERIAL1 with ``camera``, its state in ``state_dir``, as it
+    runs on a drone: yields its task and endpoint; stopped (and its link closed) on exit.
+    The task's result is the run's summary, or the exception that ended it."""
+    settings = resolve_state_paths(config.mavlink, state_dir)
+    endpoint, warnings = make_endpoint(settings, monotonic_us())
+    for w in warnings:
+        log.warning("%s", w)
+    link = open_transport(sitl.serial1_url)
+    await link.open()
+    cam = config.camera
+    daemon = Daemon(
+        replace(config, mavlink=settings),
+        [CameraInput(cam.name, cam.model, camera)],
+        transport=link,
+        endpoint=endpoint,
+        **daemon_kwargs,
+    )
+    stop = asyncio.Event()
+    task = asyncio.create_task(daemon.run(stop), name="daemon")
+    try:
+        yield task, endpoint
+    finally:
+        stop.set()
+        await asyncio.wait([task])
+        await link.close()
+
+
 async def fly_scene(
     config: AppConfig,
     sitl: ArduPilotSitl,
@@ -383,9 +420,6 @@ async def fly_scene(
     """One flight against a running SITL (the applet loaded, see :data:`SITL_PARAMS`):
     start the daemon and the camera, take off (or go back to GUIDED), fly steadily until
     the scene's ball is launched and the applet brakes, watch, stop the daemon."""
-    own_state = state_dir is None
-    sdir = state_dir or tempfile.mkdtemp(prefix="tcm-ardupilot-state-")
-    settings = resolve_state_paths(config.mavlink, sdir)
     cam_cfg = config.camera
     camera = AutopilotSimCamera(
         cam_cfg.model,
@@ -397,82 +431,63 @@ async def fly_scene(
         noise_dn=cam_cfg.source.sim_noise_dn,
     )
     recorder = _Recorder(camera, plan)
-    endpoint, warnings = make_endpoint(settings, monotonic_us())
-    for w in warnings:
-        log.warning("%s", w)
-    link = open_transport(sitl.serial1_url)
-    await link.open()
-    daemon = Daemon(
-        replace(config, mavlink=settings),
-        [CameraInput(cam_cfg.name, cam_cfg.model, camera)],
-        transport=link,
-        endpoint=endpoint,
-        on_result=recorder,
-        on_status=on_status,
-    )
-    stop = asyncio.Event()
-    task = asyncio.create_task(daemon.run(stop), name="daemon")
     t0 = time.monotonic()
     pilot_t: float | None = None
     summary: DaemonSummary | None = None
     failures: list[str] = []
-    try:
-        if not await _until(lambda: recorder.frames >= 10 or task.done(), 20.0):
-            failures.append("the daemon processed no frames within 20 s")
-        if task.done():
-            task.result()  # raise what stopped it
-        for name, value in APPLET_PARAMS.items():
-            await asyncio.to_thread(sitl.set_param, name, value)
-        for name, value in plan.companion_params:
-            await asyncio.to_thread(sitl.set_param, name, value, 10.0, endpoint.component_id)
-        await asyncio.to_thread(sitl.set_param, "TCMA_TTC", plan.ttc_alarm_s)
-        await asyncio.to_thread(sitl.set_param, "TCMA_MIN_CONF", plan.min_conf_pct)
-        if sitl.armed:
-            await asyncio.to_thread(sitl.set_mode, "GUIDED")
-        else:
-            await asyncio.to_thread(sitl.takeoff, plan.altitude_m)
-        h = math.radians(plan.heading_deg)
-        t0 = time.monotonic()
-        sitl.fly_velocity(plan.speed_mps * math.cos(h), plan.speed_mps * math.sin(h), 0.0)
-        if not await _until(lambda: camera.launch is not None, 15.0):
-            failures.append("the ball was not launched within 15 s of steady flight")
-        else:
-            launch = camera.launch
-            assert launch is not None
-            contact_s = launch.contact_us / 1e6
-            await _until(lambda: sitl.mode == BRAKE, max(0.5, contact_s + 2.0 - time.monotonic()))
-        sitl.stop_velocity()
-        braked = sitl.mode == BRAKE
-        watch_until = time.monotonic() + plan.watch_s
-        if braked and plan.pilot_mode is not None:
-            await asyncio.sleep(plan.pilot_after_s)
-            pilot_t = time.monotonic()
-            await asyncio.to_thread(sitl.set_mode, plan.pilot_mode)
-        clear = re.compile(r"^TCM: collision alarm clear")
+    with contextlib.ExitStack() as stack:
+        sdir = state_dir or stack.enter_context(tempfile.TemporaryDirectory(prefix="tcm-ap-"))
+        async with daemon_on_sitl(
+            config, sitl, camera, sdir, on_result=recorder, on_status=on_status
+        ) as (task, endpoint):
+            if not await _until(lambda: recorder.frames >= 10 or task.done(), 20.0):
+                failures.append("the daemon processed no frames within 20 s")
+            if task.done():
+                task.result()  # raise what stopped it
+            for name, value in APPLET_PARAMS.items():
+                await asyncio.to_thread(sitl.set_param, name, value)
+            for name, value in plan.companion_params:
+                await asyncio.to_thread(sitl.set_param, name, value, 10.0, endpoint.component_id)
+            await asyncio.to_thread(sitl.set_param, "TCMA_TTC", plan.ttc_alarm_s)
+            await asyncio.to_thread(sitl.set_param, "TCMA_MIN_CONF", plan.min_conf_pct)
+            if sitl.armed:
+                await asyncio.to_thread(sitl.set_mode, "GUIDED")
+            else:
+                await asyncio.to_thread(sitl.takeoff, plan.altitude_m)
+            h = math.radians(plan.heading_deg)
+            t0 = time.monotonic()
+            sitl.fly_velocity(plan.speed_mps * math.cos(h), plan.speed_mps * math.sin(h), 0.0)
+            if not await _until(lambda: camera.launch is not None, 15.0):
+                failures.append("the ball was not launched within 15 s of steady flight")
+            else:
+                launch = camera.launch
+                assert launch is not None
+                left_s = launch.contact_us / 1e6 + 2.0 - time.monotonic()
+                await _until(lambda: sitl.mode == BRAKE, max(0.5, left_s))
+            sitl.stop_velocity()
+            watch_until = time.monotonic() + plan.watch_s
+            if sitl.mode == BRAKE and plan.pilot_mode is not None:
+                await asyncio.sleep(plan.pilot_after_s)
+                pilot_t = time.monotonic()
+                await asyncio.to_thread(sitl.set_mode, plan.pilot_mode)
 
-        def cleared() -> bool:
-            return any(clear.search(s.text) for s in sitl.statustexts(t0))
+            def cleared() -> bool:
+                return (
+                    _text_time([(x.t_s, x.text) for x in sitl.statustexts(t0)], CLEAR_TEXT)[0]
+                    is not None
+                )
 
-        await _until(cleared, max(0.0, watch_until - time.monotonic()))
-        await asyncio.sleep(0.3)  # the last heartbeats and texts
-    finally:
-        stop.set()
+            await _until(cleared, max(0.0, watch_until - time.monotonic()))
+            await asyncio.sleep(0.3)  # the last heartbeats and texts
         try:
-            summary = await task
+            summary = task.result()
         except Exception as exc:  # reported, not raised: the report says what happened
             failures.append(f"the daemon failed: {exc!r}")
-        await link.close()
-        if own_state:
-            for f in Path(sdir).glob("*"):
-                with contextlib.suppress(OSError):
-                    f.unlink()
-            with contextlib.suppress(OSError):
-                Path(sdir).rmdir()
 
     texts = [(s.t_s, s.text) for s in sitl.statustexts(t0)]
     brake_hb = next((m.t_s for m in sitl.mode_changes() if m.mode == BRAKE and m.t_s >= t0), None)
     brake_text_t, brake_text = _text_time(texts, r"-> BRAKE$")
-    clear_t, _ = _text_time(texts, r"^TCM: collision alarm clear")
+    clear_t, _ = _text_time(texts, CLEAR_TEXT)
     stand_t, _ = _text_time(texts, r"^TCM: pilot mode change, standing down")
     first_brake = min((t for t in (brake_hb, brake_text_t) if t is not None), default=None)
     modes = [

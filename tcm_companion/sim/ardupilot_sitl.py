@@ -948,15 +948,23 @@ class ArduPilotSitl:
             lambda: self._check_alive() or gcs.heartbeats(), 15.0, "the autopilot's HEARTBEAT"
         )
         timings["heartbeat"] = time.monotonic() - t
+        self._streams_gps_real_time(timings, t_start, t_start, "")
+
+    def _streams_gps_real_time(
+        self, timings: dict[str, float], t_start: float, gps_since: float, after: str
+    ) -> None:
+        """The end of a boot: ask for the streams, wait until the EKF uses GPS (texts since
+        ``gps_since``), then back to real time; step times into ``timings``."""
         t = time.monotonic()
         for name, rate_hz in self.streams_hz.items():
             self.set_message_interval(name, rate_hz)
         timings["message_intervals"] = time.monotonic() - t
         t = time.monotonic()
-        gcs.wait_for(
-            lambda: self._check_alive() or self.ekf_uses_gps(since_s=t_start),
+        since = gps_since if gps_since else t
+        self.gcs.wait_for(
+            lambda: self._check_alive() or self.ekf_uses_gps(since_s=since),
             self.boot_timeout_s,
-            "the EKF to use GPS and LOCAL_POSITION_NED to flow",
+            f"the EKF to use GPS and LOCAL_POSITION_NED to flow{after}",
         )
         timings["ekf_uses_gps"] = time.monotonic() - t
         if self.real_time:
@@ -1345,20 +1353,4 @@ class ArduPilotSitl:
         timings["heartbeat"] = time.monotonic() - t
         if timeout_s is not None:
             self.boot_timeout_s = timeout_s
-        t = time.monotonic()
-        for name, rate_hz in self.streams_hz.items():
-            self.set_message_interval(name, rate_hz)
-        timings["message_intervals"] = time.monotonic() - t
-        t = time.monotonic()
-        gcs.wait_for(
-            lambda: self._check_alive() or self.ekf_uses_gps(since_s=t),
-            self.boot_timeout_s,
-            "the EKF to use GPS after the reboot",
-        )
-        timings["ekf_uses_gps"] = time.monotonic() - t
-        if self.real_time:
-            t = time.monotonic()
-            self.set_param("SIM_SPEEDUP", 1.0)
-            timings["sim_speedup_1"] = time.monotonic() - t
-        timings["total"] = time.monotonic() - t_start
-        self.boot_timings_s = timings
+        self._streams_gps_real_time(timings, t_start, 0.0, " after the reboot")

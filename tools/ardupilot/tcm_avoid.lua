@@ -462,17 +462,7 @@ local function act(alarm, now)
   local action = math.floor(pget("ACTION"))
   if action == ACTION_NONE then return end
   local mode = vehicle:get_mode()
-  if alarm.held then
-    -- no fresh evidence, the alarm only holds: keep what was done, start nothing
-    if acted_mode ~= nil and mode ~= acted_mode then
-      acted_mode = nil
-      stood_down = true
-      say(SEV_NOTICE, "pilot mode change, standing down", nil, now)
-    end
-    return
-  end
-  last_alarm_id = alarm.id
-  local text = string.format("collision course id %d ttc %.1fs", alarm.id, alarm.ttc)
+  if not alarm.held then last_alarm_id = alarm.id end
 
   -- our action stands; the pilot changing mode takes over
   if acted_mode ~= nil then
@@ -483,6 +473,9 @@ local function act(alarm, now)
     end
     return
   end
+  -- no fresh evidence, the alarm only holds: start nothing
+  if alarm.held then return end
+  local text = string.format("collision course id %d ttc %.1fs", alarm.id, alarm.ttc)
 
   local target = ACTION_MODE[action]
   local armed = arming:is_armed()

@@ -49,6 +49,7 @@ def run_replay(
 ) -> Iterator[FrameResult]:
     """Yield one :class:`FrameResult` per frame of ``scenario``."""
     pipe = pipeline or Pipeline(scenario.camera, config.pipeline)
+    buffer = pipe.telemetry
     telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
     wait = config.replay.telemetry_wait_us
     j = 0
@@ -56,4 +57,5 @@ def run_replay(
         start = j
         while j < len(telemetry) and telemetry[j].recv_us <= t_us + wait:
             j += 1
-        yield pipe.step(image, t_us, telemetry[start:j])
+        buffer.extend(telemetry[start:j])
+        yield pipe.step(image, t_us)

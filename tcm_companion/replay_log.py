@@ -100,8 +100,8 @@ def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
     base = config.pipeline
     pipe_cfg = config_with_params(base, endpoint.params.values)
     clock = ReplayClock()
-    pipe = Pipeline(camera, pipe_cfg)
-    pipe.telemetry = TelemetryBuffer(clock=clock)
+    telemetry = TelemetryBuffer(clock=clock)
+    pipe = Pipeline(camera, pipe_cfg, telemetry=telemetry)
     images: dict[int, np.ndarray] = {}
     image_topic = f"/camera{camera_id}/image"
     topics = {"/mavlink/in", image_topic, "/tcm/result"}
@@ -110,13 +110,11 @@ def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
         if rec.topic == "/mavlink/in":
             for ev in endpoint.receive_data(rec.data, t_us):
                 if isinstance(ev, TelemetryReceived):
-                    pipe.telemetry.add(ev.sample)
+                    telemetry.add(ev.sample)
             new_cfg = config_with_params(base, endpoint.params.values)
             if new_cfg != pipe_cfg:  # a GCS changed a parameter: rebuilt as in flight
                 pipe_cfg = new_cfg
-                telemetry = pipe.telemetry
-                pipe = Pipeline(camera, pipe_cfg)
-                pipe.telemetry = telemetry
+                pipe = Pipeline(camera, pipe_cfg, telemetry=telemetry)
         elif rec.topic == image_topic:
             _, t_capture, image = decode_image(rec)
             images[t_capture] = image

@@ -31,7 +31,8 @@ def feed(pipe: Pipeline, frames, telemetry, wait_us: int = 40_000, mutate=None):
         batch = list(telemetry[start:j])
         if mutate is not None:
             batch = mutate(i, batch)
-        out.append(pipe.step(img, t_us, batch))
+        pipe.telemetry.extend(batch)
+        out.append(pipe.step(img, t_us))
     return out
 
 
@@ -89,7 +90,7 @@ def test_time_going_backwards_resets_history(pinhole) -> None:  # type: ignore[n
     pipe = Pipeline(s.camera)
     feed(pipe, frames[:15], tel)
     _, t_us, img = frames[15]
-    r = pipe.step(img, t_us - 10_000_000, [])
+    r = pipe.step(img, t_us - 10_000_000)
     assert pipe.health.time_backwards == 1
     assert all(o.state == "unknown" for o in r.objects)
 
@@ -98,9 +99,9 @@ def test_bad_frames_are_counted_and_skipped(pinhole) -> None:  # type: ignore[no
     s, frames, tel = pinhole
     pipe = Pipeline(s.camera)
     feed(pipe, frames[:3], tel)
-    r = pipe.step(np.zeros((10, 10, 3), np.uint8), int(frames[3][1]), [])
+    r = pipe.step(np.zeros((10, 10, 3), np.uint8), int(frames[3][1]))
     assert r.objects == () and pipe.health.bad_frames == 1
-    r = pipe.step(np.zeros((480, 640), np.uint8), int(frames[4][1]), [])
+    r = pipe.step(np.zeros((480, 640), np.uint8), int(frames[4][1]))
     assert pipe.health.bad_frames == 2
     _, t_us, img = frames[5]
-    assert len(pipe.step(img, t_us, []).objects) == 1
+    assert len(pipe.step(img, t_us).objects) == 1

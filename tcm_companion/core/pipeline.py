@@ -1,6 +1,8 @@
 """The TCM pipeline: one object that turns frames and telemetry into per-object results.
 
-``Pipeline.step(frame, frame_time_us, telemetry)`` runs, for one camera frame:
+``Pipeline.step(frame, frame_time_us)`` runs, for one camera frame (the autopilot's
+telemetry reaches it one way only: the :class:`TelemetryBuffer` given to the constructor,
+which the caller feeds and may share between cameras):
 attitude at the frame time (slerp on the autopilot clock mapped to the companion clock)
 → detection → tracking by bearing → optic flow → translation between the frame and the
 one ``frame_interval`` earlier (vision, autopilot or fused) → TCM/ECM (and BSM when
@@ -46,7 +48,7 @@ from .egomotion import (
 from .flow import FlowConfig, FlowTracker
 from .frames import FloatArray, azel_from_bearing, rotate_by_vector
 from .tcm import stationary_range_m, triangle_geometry
-from .telemetry import TelemetryBuffer, TelemetrySample
+from .telemetry import TelemetryBuffer
 from .tracking import Observation, Track, Tracker, TrackerConfig
 from .ttc import TTCConfig, estimate_ttc
 
@@ -134,11 +136,13 @@ class Pipeline:
         camera: CameraModel,
         config: PipelineConfig = PipelineConfig(),
         timer: Callable[[], float] = time.perf_counter,
+        *,
+        telemetry: TelemetryBuffer | None = None,
     ) -> None:
         self.camera = camera
         self.config = config
         self._timer = timer
-        self.telemetry = TelemetryBuffer()
+        self._telemetry = telemetry if telemetry is not None else TelemetryBuffer()
         self.detector = Detector(camera, config.detection)
         self.tracker = Tracker(config.tracking)
         self.flow = FlowTracker(camera, config.flow)
@@ -160,22 +164,18 @@ class Pipeline:
         self._memory: dict[int, deque[tuple[int, Classification]]] = {}
         self.health = PipelineHealth()
 
-    # -- the one entry point -------------------------------------------------------
-    def step(
-        self,
-        frame: np.ndarray,
-        frame_time_us: int,
-        telemetry: Sequence[TelemetrySample] = (),
-    ) -> FrameResult:
-        """Process one BGR frame captured at ``frame_time_us`` (companion clock).
+    @property
+    def telemetry(self) -> TelemetryBuffer:
+        """The attitude and position this pipeline reads (the caller feeds it)."""
+        return self._telemetry
 
-        ``telemetry`` holds the samples received since the previous call (any order of
-        kinds, receive order within a kind).
-        """
+    # -- the one entry point -------------------------------------------------------
+    def step(self, frame: np.ndarray, frame_time_us: int) -> FrameResult:
+        """Process one BGR frame captured at ``frame_time_us`` (companion clock), with the
+        telemetry its buffer holds by then."""
         timings: dict[str, float] = {}
         clock = self._timer
         t_start = clock()
-        self.telemetry.extend(tuple(telemetry))
         if self._last_t_us is not None and frame_time_us <= self._last_t_us:
             # Time went backwards (camera restart, clock step): history is meaningless.
             self.health.time_backwards += 1

@@ -371,9 +371,11 @@ def scenario_to_log(
     if results:
         from ..config import AppConfig
         from ..core.pipeline import Pipeline
+        from ..core.telemetry import TelemetryBuffer
 
         cfg = config if config is not None else AppConfig()
-        pipeline = Pipeline(scenario.camera, cfg.pipeline)
+        buffer = TelemetryBuffer()
+        pipeline = Pipeline(scenario.camera, cfg.pipeline, telemetry=buffer)
         threshold = float(cfg.pipeline.classifier.tcm_threshold)
         wait_us = int(cfg.replay.telemetry_wait_us)
         telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
@@ -413,7 +415,8 @@ def scenario_to_log(
                     start = k
                     while k < len(telemetry) and telemetry[k].recv_us <= t_us + wait_us:
                         k += 1
-                    res = pipeline.step(image, t_us, telemetry[start:k])
+                    buffer.extend(telemetry[start:k])
+                    res = pipeline.step(image, t_us)
                     doc = replay_result_doc(res, threshold)
                     circles = annotation_circles(res, scenario.camera)
                     _retry(f"result {i}", writer.log_json, "/tcm/result", t_us, doc)

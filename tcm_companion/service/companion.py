@@ -202,13 +202,13 @@ class Companion:
         self.base_pipeline_config = pipeline_config
         self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
         names = list(camera_names) if camera_names else [f"camera{i}" for i in range(len(cameras))]
+        # One telemetry buffer for every camera: attitude at each frame's capture time
+        # through the TIMESYNC mapping, one clock fit.
+        self.telemetry = TelemetryBuffer(clock=TimesyncClock(endpoint))
         self.cameras = [
-            _Camera(i, names[i], cam, Pipeline(cam, self.pipeline_config))
+            _Camera(i, names[i], cam, Pipeline(cam, self.pipeline_config, telemetry=self.telemetry))
             for i, cam in enumerate(cameras)
         ]
-        for c in self.cameras:
-            # Attitude at each frame's capture time through the TIMESYNC mapping.
-            c.pipeline.telemetry = TelemetryBuffer(clock=TimesyncClock(endpoint))
         specs = [InputSpec(c.name, 25.0, config.camera_timeout_us) for c in self.cameras]
         ecfg = endpoint.config
         specs.append(InputSpec("attitude", ecfg.attitude_rate_hz, config.attitude_timeout_us))
@@ -230,8 +230,7 @@ class Companion:
         for ev in events:
             if isinstance(ev, TelemetryReceived):
                 s = ev.sample
-                for cam in self.cameras:
-                    cam.pipeline.telemetry.add(s)
+                self.telemetry.add(s)
                 if isinstance(s, AttitudeSample):
                     self.inputs.update("attitude", now_us, True)
                 elif isinstance(s, PositionSample):
@@ -261,9 +260,8 @@ class Companion:
         self.endpoint.statustext(d.MAV_SEVERITY_INFO, "TCM: parameters applied", now_us)
 
     def _rebuild(self, cam: _Camera) -> None:
-        old = cam.pipeline
-        cam.pipeline = Pipeline(cam.model, self.pipeline_config)
-        cam.pipeline.telemetry = old.telemetry  # keep the attitude history and clock fit
+        # The shared telemetry keeps the attitude history and clock fit.
+        cam.pipeline = Pipeline(cam.model, self.pipeline_config, telemetry=self.telemetry)
         cam.consecutive_errors = 0
         self.stats.pipeline_rebuilds += 1
 
@@ -274,8 +272,7 @@ class Companion:
         ``None``: now (the attitude covers it, or nothing will come). Otherwise the
         companion time to wait until, unless a new attitude sample arrives first.
         """
-        tel = self.cameras[camera_id].pipeline.telemetry
-        newest = tel.latest_attitude_time_us()
+        newest = self.telemetry.latest_attitude_time_us()
         if newest is None:
             return None  # no attitude at all: waiting would not help
         if t_capture_us - newest <= self.config.attitude_lead_max_us:
@@ -331,7 +328,7 @@ class Companion:
 
     def clock_offset_us(self, camera_id: int) -> float:
         """The autopilot-to-companion offset (µs) the camera's pipeline uses now."""
-        return float(self.cameras[camera_id].pipeline.telemetry.clock.offset_us)
+        return float(self.telemetry.clock.offset_us)
 
     def threshold(self) -> float:
         return float(self.pipeline_config.classifier.tcm_threshold)

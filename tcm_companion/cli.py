@@ -338,7 +338,10 @@ def build_parser() -> argparse.ArgumentParser:
         )
         p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
-    p = sub.add_parser("demo", help="simulate TS/T45/T90 and print the evaluation (make run)")
+    p = sub.add_parser(
+        "demo",
+        help="simulate TS/T45/T90 and print the paper's evaluation (make demo; about 9 minutes)",
+    )
     common(p)
     p.add_argument(
         "--duration", type=float, default=None, help="seconds per flight (default: scenario's)"

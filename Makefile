@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
 UV     := uv==0.13.9
 
-.PHONY: run demo test lint typecheck venv lock lua32 clean eval bench interop-env
+.PHONY: run demo test test-tools lint typecheck venv lock lua32 clean eval bench interop-env
 
 venv: $(STAMP)
 
@@ -66,8 +66,27 @@ lua32: $(BIN)/lua5.4-32
 $(BIN)/lua5.4-32: tools/ardupilot/build_lua32.py | $(STAMP)
 	$(BIN)/python tools/ardupilot/build_lua32.py --out $@
 
-test: lint typecheck
-	@$(MAKE) -s lua32 || echo "make: no 32-bit Lua (offline?): the applet's 32-bit checks will skip; retry with make lua32"
+## What the tests use besides Python, as CI has it (.ci/run): socat (a real pty pair),
+## lua5.4 and ArduPilot's 32-bit Lua (the applet), MAVProxy's venv (interop). Installed when
+## this machine lets us (root, or sudo without a password); otherwise one line says what
+## will be skipped and the command that installs it.
+test-tools: $(STAMP)
+	@missing=""; for t in socat lua5.4; do command -v $$t >/dev/null 2>&1 || missing="$$missing $$t"; done; \
+	if [ -n "$$missing" ]; then \
+	    if [ "$$(id -u)" -eq 0 ]; then sudo=""; elif sudo -n true 2>/dev/null; then sudo="sudo"; else sudo=none; fi; \
+	    if [ "$$sudo" != none ]; then \
+	        echo "make: installing$$missing (apt)"; \
+	        $$sudo apt-get update -qq >/dev/null && \
+	        $$sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null || \
+	        echo "make: could not install$$missing: their tests will skip"; \
+	    else \
+	        echo "make: missing$$missing: the pty and Lua tests will skip; install with: sudo apt-get install$$missing"; \
+	    fi; \
+	fi
+	@$(MAKE) -s interop-env || echo "make: MAVProxy's venv could not be built: the MAVProxy interop tests will skip; retry with: make interop-env"
+	@$(MAKE) -s lua32 || echo "make: no 32-bit Lua (offline?): the applet's 32-bit checks will skip; retry with: make lua32"
+
+test: lint typecheck test-tools
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
 
 eval: $(STAMP)

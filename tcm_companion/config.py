@@ -294,6 +294,10 @@ def load_config(
             raise ConfigError(f"{p}: is a directory, not a TOML file") from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{p}: {exc}") from None
+        except UnicodeDecodeError:
+            from .io.scenario import not_utf8
+
+            raise ConfigError(f"{p}: {not_utf8(p)}") from None
     origins = apply_overrides(doc, environ, sets)
     try:
         return config_from_dict(doc, where)

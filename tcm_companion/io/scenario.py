@@ -255,6 +255,19 @@ def _read_toml(path: Path) -> dict[str, Any]:
         raise ScenarioError(f"{path}: missing (every scenario needs one)") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: {exc}") from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: {not_utf8(path)}") from None
+
+
+def not_utf8(path: Path | str) -> str:
+    """Where a text file stops being UTF-8: one line for an error message."""
+    data = Path(path).read_bytes()
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        return f"line {line}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})"
+    return "not UTF-8 text"
 
 
 def _csv_rows(path: Path, header: list[str]) -> Iterator[tuple[int, list[str]]]:
@@ -265,19 +278,23 @@ def _csv_rows(path: Path, header: list[str]) -> Iterator[tuple[int, list[str]]]:
         raise ScenarioError(f"{path}: missing") from None
     with fh:
         reader = csv.reader(fh)
-        first = next(reader, None)
-        if first is None or [h.strip() for h in first] != header:
-            raise ScenarioError(
-                f"{path}: line 1: header must be {','.join(header)!r}, got {first!r}"
-            )
-        for row in reader:
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
+        try:
+            first = next(reader, None)
+            if first is None or [h.strip() for h in first] != header:
                 raise ScenarioError(
-                    f"{path}: line {reader.line_num}: expected {len(header)} fields, got {len(row)}"
+                    f"{path}: line 1: header must be {','.join(header)!r}, got {first!r}"
                 )
-            yield reader.line_num, [c.strip() for c in row]
+            for row in reader:
+                if not row or all(not c.strip() for c in row):
+                    continue
+                if len(row) != len(header):
+                    raise ScenarioError(
+                        f"{path}: line {reader.line_num}: expected {len(header)} fields,"
+                        f" got {len(row)}"
+                    )
+                yield reader.line_num, [c.strip() for c in row]
+        except UnicodeDecodeError:
+            raise ScenarioError(f"{path}: {not_utf8(path)}") from None
 
 
 def _int(path: Path, line: int, name: str, text: str) -> int:

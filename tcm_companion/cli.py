@@ -56,12 +56,13 @@ def _is_log(path: str) -> bool:
 
 def cmd_replay_log(args: argparse.Namespace) -> int:
     """A flight log: recompute every processed frame and compare with what was logged."""
+    from .io.outputs import atomic_text
     from .io.results import ResultsWriter
     from .replay_log import compare, replay_log
 
     rows = mismatched = frames = 0
     diffs: list[str] = []
-    with open(args.results, "w", newline="") as fh:
+    with atomic_text(args.results, force=args.force) as fh:
         writer = ResultsWriter(fh)
         for frame in replay_log(args.scenario, args.camera_id):
             writer.write(frame.result)
@@ -80,7 +81,47 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     return 1 if (args.check and mismatched) else 0
 
 
+class _TolerantFrames:
+    """A scenario whose unreadable frames are reported and replayed as ``None`` (the
+    pipeline counts them as bad frames) instead of ending the replay."""
+
+    def __init__(self, scenario: Any) -> None:
+        self._inner = scenario
+        self.unreadable: list[tuple[int, str]] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+    def iter_frames(self) -> Any:
+        return self._inner.iter_frames_tolerant(lambda i, why: self.unreadable.append((i, why)))
+
+
+def _unknown_rows(previous: Any, frame_index: int, t_us: int) -> Any:
+    """The objects of the last good frame, as ``unknown`` rows of an unreadable frame."""
+    import dataclasses
+    import math
+
+    from .core.classify import unknown
+    from .core.pipeline import FrameResult
+
+    why = "unreadable frame"
+    objects = tuple(
+        dataclasses.replace(
+            o,
+            detected=False,
+            state="unknown",
+            reason=why,
+            classification=unknown(why),
+            ttc_s=math.nan,
+            collision_course=False,
+        )
+        for o in (previous.objects if previous is not None else ())
+    )
+    return FrameResult(frame_index, t_us, objects, False, None, {})
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
+    from .io.outputs import atomic_text
     from .io.results import ResultsWriter
     from .io.scenario import load_scenario
     from .replay import run_replay, with_method
@@ -88,23 +129,38 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if _is_log(args.scenario):
         return cmd_replay_log(args)
     config = with_method(_config(args.config), args.method, bsm=args.method == "bsm")
-    scenario = load_scenario(args.scenario)
+    scenario = _TolerantFrames(load_scenario(args.scenario))
     for w in scenario.warnings:
         print(f"warning: {w}", file=sys.stderr)
     states: dict[str, int] = {}
+    previous = None
+    reported = 0
     with (
-        open(args.results, "w", newline="") as fh,
+        atomic_text(args.results, force=args.force) as fh,
         _progress(scenario.n_frames, scenario.name, not args.quiet) as bar,
     ):
         writer = ResultsWriter(fh)
         for result in run_replay(scenario, config):
+            if len(scenario.unreadable) > reported:  # this frame could not be read
+                reported = len(scenario.unreadable)
+                result = _unknown_rows(previous, result.frame_index, result.t_us)
+            else:
+                previous = result
             writer.write(result)
             for o in result.objects:
                 states[o.state] = states.get(o.state, 0) + 1
             bar.update(1)
+    for i, why in scenario.unreadable[:10]:
+        print(f"warning: frame {i} skipped: {why}", file=sys.stderr)
+    if len(scenario.unreadable) > 10:
+        print(f"warning: ... {len(scenario.unreadable) - 10} more", file=sys.stderr)
     summary = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "no objects"
+    skipped = (
+        f"; {len(scenario.unreadable)} unreadable frame(s) skipped" if scenario.unreadable else ""
+    )
     print(
-        f"{scenario.name}: {scenario.n_frames} frames, {writer.rows} rows ({summary}) -> {args.results}"
+        f"{scenario.name}: {scenario.n_frames} frames, {writer.rows} rows ({summary})"
+        f"{skipped} -> {args.results}"
     )
     return 0
 
@@ -255,17 +311,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 # -- logs ----------------------------------------------------------------------------------
 def cmd_export(args: argparse.Namespace) -> int:
+    from .io.outputs import atomic_path
     from .logtools.convert import log_to_scenario
 
-    log_to_scenario(args.log, args.scenario, camera_id=args.camera_id)
+    with atomic_path(args.scenario, force=args.force, is_dir=True) as tmp:
+        log_to_scenario(args.log, tmp, camera_id=args.camera_id)
     print(f"{args.log} -> {args.scenario}")
     return 0
 
 
 def cmd_import(args: argparse.Namespace) -> int:
+    from .io.outputs import atomic_path
     from .logtools.convert import scenario_to_log
 
-    scenario_to_log(args.scenario, args.log, image_format=args.image_format, results=args.results)
+    with atomic_path(args.log, force=args.force) as tmp:
+        scenario_to_log(args.scenario, tmp, image_format=args.image_format, results=args.results)
     print(f"{args.scenario} -> {args.log}")
     return 0
 
@@ -307,7 +367,10 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             seed=args.seed,
         )
-    export_scenario(sim, Path(args.dir))
+    from .io.outputs import atomic_path
+
+    with atomic_path(args.dir, force=args.force, is_dir=True) as tmp:
+        export_scenario(sim, tmp)
     print(
         f"wrote {sim.name}: {sim.n_frames} frames, {sim.camera.model_name} "
         f"{sim.camera.width}x{sim.camera.height} -> {args.dir}"
@@ -362,6 +425,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--camera-id", type=int, default=0, help="flight log: which camera")
     p.add_argument("--results", required=True, help="results CSV to write")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the output if it exists (it is written beside it and renamed into place when complete)",
+    )
     p.add_argument(
         "--method", choices=METHODS, default=None, help="decision method (default: config)"
     )
@@ -430,12 +498,22 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="flight log -> tcm-scenario/1 (frames + .tlog)")
     p.add_argument("log", help="flight log file or directory")
     p.add_argument("--scenario", required=True, metavar="DIR", help="scenario directory to write")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the output if it exists (it is written beside it and renamed into place when complete)",
+    )
     p.add_argument("--camera-id", type=int, default=0)
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("import", help="tcm-scenario/1 -> flight log (.mcap)")
     p.add_argument("scenario", help="scenario directory")
     p.add_argument("--log", required=True, metavar="FILE", help="MCAP file to write")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the output if it exists (it is written beside it and renamed into place when complete)",
+    )
     p.add_argument("--image-format", choices=("png", "jpeg"), default="png")
     p.add_argument(
         "--results",
@@ -454,6 +532,11 @@ def build_parser() -> argparse.ArgumentParser:
     e = ssub.add_parser("export", help="write a simulated scenario as a tcm-scenario/1 directory")
     e.add_argument("name", help="scenario name (see `sim list`)")
     e.add_argument("dir", help="output directory")
+    e.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the output if it exists (it is written beside it and renamed into place when complete)",
+    )
     e.add_argument("--camera", choices=("panorama", "pinhole", "fisheye"), default=None)
     e.add_argument("--resolution", type=_resolution, default=None, metavar="WxH")
     e.add_argument("--duration", type=float, default=None)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import math
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -87,22 +87,56 @@ class Scenario:
         return self.frames_dir / f"{index:06d}.png"
 
     def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
-        """Yield ``(index, t_us, BGR image)`` in order."""
+        """Yield ``(index, t_us, BGR image)`` in order; an unreadable frame is an error."""
+        for i, t, img in self.iter_frames_tolerant(None):
+            assert img is not None
+            yield i, t, img
+
+    def iter_frames_tolerant(
+        self, on_unreadable: Callable[[int, str], None] | None
+    ) -> Iterator[tuple[int, int, np.ndarray | None]]:
+        """Yield ``(index, t_us, image)`` in order. With ``on_unreadable``, a frame that
+        cannot be read (missing, empty, corrupt, wrong size; a video that stops decoding)
+        is reported to it and yielded as ``None`` instead of raising :class:`ScenarioError`."""
+
+        def bad(i: int, exc: ScenarioError) -> None:
+            if on_unreadable is None:
+                raise exc
+            on_unreadable(i, str(exc))
+
         if self.frames_dir is not None:
             for i, t in enumerate(self.frame_times_us):
-                yield i, int(t), self.read_frame(i)
+                try:
+                    img: np.ndarray | None = self.read_frame(i)
+                except ScenarioError as exc:
+                    bad(i, exc)
+                    img = None
+                yield i, int(t), img
             return
         assert self.video is not None
         cap = cv2.VideoCapture(str(self.video))
+        decoding = True
         try:
             for i, t in enumerate(self.frame_times_us):
-                ok, img = cap.read()
-                if not ok or img is None:
-                    raise ScenarioError(
-                        f"{self.video}: frame {i} cannot be decoded "
-                        f"(frames.csv lists {self.n_frames} frames)"
-                    )
-                self._check_size(img, f"{self.video}: frame {i}")
+                img = None
+                if decoding:
+                    ok, img = cap.read()
+                    if not ok or img is None:
+                        decoding = False  # a video that stops decoding does not resume
+                        img = None
+                        bad(
+                            i,
+                            ScenarioError(
+                                f"{self.video}: frame {i} cannot be decoded (frames.csv lists"
+                                f" {self.n_frames} frames); the rest are unreadable too"
+                            ),
+                        )
+                    else:
+                        try:
+                            self._check_size(img, f"{self.video}: frame {i}")
+                        except ScenarioError as exc:
+                            bad(i, exc)
+                            img = None
                 yield i, int(t), img
         finally:
             cap.release()

@@ -1,7 +1,11 @@
-"""Simulator: export round trip, geometry of the rendered ball, telemetry, determinism."""
+"""Simulator: export round trip, geometry of the rendered ball, telemetry, determinism.
+
+(Objects of other shapes, the new scenarios, truth and the detector simulator:
+``test_sim_objects.py``.)"""
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections import Counter
 
@@ -15,7 +19,8 @@ from tcm_companion.core.telemetry import AttitudeSample, PositionSample
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.io.tlog import iter_tlog
 from tcm_companion.sim import SCENARIO_NAMES, export_scenario, flight_plan, make_scenario
-from tcm_companion.sim.scenarios import euler_zyx_rad
+from tcm_companion.sim.render import Renderer
+from tcm_companion.sim.scenarios import PAPER_SCENARIO_NAMES, euler_zyx_rad, plan_world
 
 CAMERAS: dict[str, CameraModel] = {
     "equirectangular": Equirectangular(360, 220),
@@ -214,8 +219,11 @@ def test_determinism_with_seed():
 
 
 def test_scenario_catalogue():
-    assert SCENARIO_NAMES == ("TS", "T45", "T90", "RAISED", "INPLANE", "COLLISION", "HEADON", "TWO")
-    for name in SCENARIO_NAMES:
+    paper = ("TS", "T45", "T90", "RAISED", "INPLANE", "COLLISION", "HEADON", "TWO")
+    assert PAPER_SCENARIO_NAMES == paper
+    assert SCENARIO_NAMES[: len(paper)] == paper
+    assert len(set(SCENARIO_NAMES)) == len(SCENARIO_NAMES)
+    for name in PAPER_SCENARIO_NAMES:
         plan = flight_plan(name)
         short = name in ("COLLISION", "HEADON")
         assert (6.0 <= plan.duration_s <= 8.0) if short else plan.duration_s == 40.0
@@ -254,3 +262,32 @@ def test_scenario_catalogue():
 
     sim = make_scenario("TWO", duration_s=0.4)
     assert len(sim.truth.frame) == 2 * sim.n_frames
+
+
+#: sha256 (first 16 hex digits) of the paper's scenarios rendered at 360×220 at t = 1.3 s
+#: and 4.7 s (seed 0, noise from ``default_rng(int(t * 1000))``), recorded before the
+#: simulator learnt objects of other shapes: their frames must stay byte-identical.
+#: Only a deliberate change of the paper's scene may update them (and says so).
+PAPER_FRAME_SHA256 = {
+    "TS": ("2d2c4a364fb0ad8c", "67bacbdea74bd4b4"),
+    "T45": ("9dced490cef0dc3d", "b271e02ea56be858"),
+    "T90": ("386c55a9b64334b2", "f1c83803a888de78"),
+    "RAISED": ("106cb81c0de0784f", "13a5e0535765db04"),
+    "INPLANE": ("7fe46a2824057f73", "88f1eb825110d347"),
+    "COLLISION": ("1d65136674d702cf", "ffc0ef9d1456516d"),
+    "HEADON": ("2b61b1ac01fcc7c1", "548c345c454e8a7b"),
+    "TWO": ("b160e9d80099b9f9", "080c687a113a7344"),
+}
+
+
+def test_paper_scenarios_render_byte_identical():
+    cam = Equirectangular(360, 220)
+    for name, expected in PAPER_FRAME_SHA256.items():
+        plan = flight_plan(name, seed=0)
+        renderer = Renderer(plan_world(plan), cam, seed=0)
+        got = []
+        for t in (1.3, 4.7):
+            pos, R = plan.vehicle.position_ned_m(t), plan.vehicle.R_ned_from_body(t)
+            img = renderer.render(t, pos, R, rng=np.random.default_rng(int(t * 1000)))
+            got.append(hashlib.sha256(img.tobytes()).hexdigest()[:16])
+        assert tuple(got) == expected, name

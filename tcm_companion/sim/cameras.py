@@ -12,7 +12,8 @@ from ..core.camera import CameraModel, Equirectangular, Fisheye, Pinhole
 
 PRESETS = ("panorama", "pinhole", "fisheye")
 
-#: Pinhole yaw (degrees right of the nose) per scenario; others look right (90°).
+#: Pinhole yaw (degrees right of the nose) per scenario; others look right (90°). The
+#: variants with other objects (``COLLISION-DISC``, ``HEADON-BOX``, ...) look like theirs.
 _PINHOLE_YAW_DEG = {"HEADON": 0.0, "COLLISION": 35.0}
 
 
@@ -28,7 +29,7 @@ def preset_camera(
         cam = Pinhole(
             640,
             480,
-            (0.0, -10.0, _PINHOLE_YAW_DEG.get(scenario.upper(), 90.0)),
+            (0.0, -10.0, _PINHOLE_YAW_DEG.get(scenario.upper().split("-")[0], 90.0)),
             fx=320.0,
             fy=320.0,
             cx=320.0,

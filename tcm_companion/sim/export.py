@@ -8,6 +8,12 @@ the in-memory scenario and the exported directory gives identical inputs.
 
 Determinism: everything follows from ``seed`` (clocks, turbulence, telemetry noise and
 latency, sensor noise of frame ``i`` — independent of the order frames are rendered).
+
+:func:`export_scenario` writes the optional ``[[target]]`` tables when an object is not
+the default red sphere, and ``detections.csv`` from the simulated box detector
+(:mod:`.detector_sim`) when asked. Truth beyond ``truth.csv`` (range to an object's
+centre, range ratios, its image): :meth:`SimulatedScenario.true_range_m`,
+:meth:`~SimulatedScenario.true_range_ratio`, :meth:`~SimulatedScenario.object_views`.
 """
 
 from __future__ import annotations
@@ -15,9 +21,9 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -29,9 +35,14 @@ from ..io.samples import sample_from_message
 from ..io.scenario import FORMAT, FRAMES_HEADER, TRUTH_HEADER, Truth
 from ..io.tlog import TlogStats, iter_tlog
 from .render import Renderer
-from .scenarios import SCENARIO_NAMES, FlightPlan, default_camera, flight_plan
+from .scenario_io import targets_toml
+from .scenarios import SCENARIO_NAMES, FlightPlan, default_camera, flight_plan, plan_world
 from .telemetry import TelemetryConfig, frame_times, make_clocks, synthesize_tlog, tlog_bytes
-from .world import World, field_world
+from .world import World
+
+if TYPE_CHECKING:
+    from .detector_sim import DetectorSimConfig, TrueBox
+    from .truth import ObjectView
 
 __all__ = ["SCENARIO_NAMES", "SimulatedScenario", "export_scenario", "make_scenario"]
 
@@ -62,7 +73,7 @@ class SimulatedScenario:
         self.seed = seed
         self.noise = float(noise)
         self.fisheye_fov_deg = fisheye_fov_deg
-        self.world = world if world is not None else field_world(plan.balls, plan.heading_rad)
+        self.world = world if world is not None else plan_world(plan)
         self.telemetry_config = telemetry_config or TelemetryConfig()
         self.warnings: list[str] = []
 
@@ -110,6 +121,15 @@ class SimulatedScenario:
             float(self.frame_times_s[index]), pos, R, noise_dn=SENSOR_NOISE_DN * self.noise, rng=rng
         )
 
+    def read_frame_with_coverage(self, index: int) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """:meth:`read_frame`'s image (the same bytes) and each object's visible coverage
+        (:meth:`~.render.Renderer.render_with_coverage`)."""
+        pos, R = self.vehicle_pose(index)
+        rng = np.random.default_rng(np.random.SeedSequence([20160628, self.seed, 1, index]))
+        return self.renderer.render_with_coverage(
+            float(self.frame_times_s[index]), pos, R, noise_dn=SENSOR_NOISE_DN * self.noise, rng=rng
+        )
+
     def attitude_samples(self) -> list[AttitudeSample]:
         return [s for s in self.telemetry if isinstance(s, AttitudeSample)]
 
@@ -142,17 +162,36 @@ class SimulatedScenario:
         t = float(self.frame_times_s[index])
         return self.plan.vehicle.position_ned_m(t), self.plan.vehicle.R_ned_from_body(t)
 
+    def true_range_m(self, frame: int, object_id: int) -> float:
+        """Range (m) from the camera centre to object ``object_id``'s centre."""
+        from .truth import true_range_m
+
+        return true_range_m(self, frame, object_id)
+
+    def true_range_ratio(self, frame0: int, frame1: int, object_id: int) -> float:
+        """True ``d0 / d1`` of object ``object_id`` between two frames."""
+        from .truth import true_range_ratio
+
+        return true_range_ratio(self, frame0, frame1, object_id)
+
+    def object_views(self, frame: int) -> list[ObjectView]:
+        """Every object's image at frame ``frame``: centre pixel, silhouette box,
+        angular extent, range (exact geometry at the true pose; see :mod:`.truth`)."""
+        from .truth import object_views
+
+        return object_views(self, frame)
+
     def _make_truth(self) -> Truth:
         t = self.frame_times_s
         veh = self.plan.vehicle.position_ned_m(t)
         frames, ids, moving, obj, radius, vehs = [], [], [], [], [], []
         for i in range(self.n_frames):
-            for ball in self.plan.balls:
+            for o in self.plan.objects:
                 frames.append(i)
-                ids.append(ball.object_id)
-                moving.append(ball.moving)
-                obj.append(ball.centre_ned_m(float(t[i])))
-                radius.append(ball.radius_m)
+                ids.append(o.object_id)
+                moving.append(o.moving)
+                obj.append(o.centre_ned_m(float(t[i])))
+                radius.append(o.bounding_radius_m)
                 vehs.append(veh[i])
         return Truth(
             frame=np.asarray(frames, dtype=np.int64),
@@ -212,19 +251,25 @@ def scenario_toml(sim: SimulatedScenario) -> str:
         "[camera]",
     ]
     lines += [f"{k} = {_toml_value(v)}" for k, v in sim.camera.to_dict().items()]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" + targets_toml(sim.plan.objects)
 
 
 _FRAME_NAME = re.compile(r"^\d{6}\.png$")
 
 
 def export_scenario(
-    sim: SimulatedScenario, out_dir: str | Path, progress: bool | None = None
+    sim: SimulatedScenario,
+    out_dir: str | Path,
+    progress: bool | None = None,
+    detections: DetectorSimConfig | bool | None = None,
 ) -> Path:
     """Write ``sim`` as a ``tcm-scenario/1`` directory; returns its path.
 
     Renders every frame (a progress bar shows when ``progress`` is true, or by default
     for more than 50 frames). Stale ``NNNNNN.png`` files beyond the last frame are removed.
+    ``detections``: also write ``detections.csv`` from the simulated detector (True: its
+    default settings; a :class:`~.detector_sim.DetectorSimConfig`: those), from the
+    visible coverage rendered with each frame; otherwise a stale one is removed.
     """
     out = Path(out_dir)
     frames_dir = out / "frames"
@@ -252,14 +297,38 @@ def export_scenario(
         if _FRAME_NAME.match(stale.name) and int(stale.name[:6]) >= sim.n_frames:
             stale.unlink()
 
+    det_config: DetectorSimConfig | None = None
+    if detections is True:
+        from .detector_sim import DetectorSimConfig
+
+        det_config = DetectorSimConfig()
+    elif detections is not None and detections is not False:
+        det_config = detections
+    if det_config is None:
+        (out / "detections.csv").unlink(missing_ok=True)
+
     show = progress if progress is not None else sim.n_frames > 50
-    frames: Iterator[tuple[int, int, np.ndarray]] = sim.iter_frames()
+    indices: Iterable[int] = range(sim.n_frames)
     if show:
         from tqdm import tqdm
 
-        frames = tqdm(frames, total=sim.n_frames, desc=f"rendering {sim.name}", unit="frame")
-    for i, _, img in frames:
+        indices = tqdm(indices, total=sim.n_frames, desc=f"rendering {sim.name}", unit="frame")
+    truth_boxes: list[list[TrueBox]] = []
+    for i in indices:
+        if det_config is None:
+            img = sim.read_frame(i)
+        else:
+            from .detector_sim import true_boxes_from_coverage
+
+            img, cov = sim.read_frame_with_coverage(i)
+            truth_boxes.append(true_boxes_from_coverage(sim, i, cov))
         path = frames_dir / f"{i:06d}.png"
         if not cv2.imwrite(str(path), img):
             raise OSError(f"{path}: cv2.imwrite failed")
+    if det_config is not None:
+        from .detector_sim import simulate_detections
+        from .scenario_io import write_detections_csv
+
+        rows = simulate_detections(sim, det_config, truth_boxes)
+        write_detections_csv(out / "detections.csv", rows)
     return out

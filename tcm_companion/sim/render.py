@@ -26,6 +26,15 @@ Appearance:
   centre, ρ the sphere's angular radius and p the pixel's angular size
   (``camera.pixel_size_map_rad``), so the rendered disc's area matches the geometric
   one to a fraction of a pixel along its rim (box edges are hard);
+- the other targets (:class:`~.world.BoxTarget`, :class:`~.world.CylinderTarget`,
+  :class:`~.world.DiscTarget`) are ray cast exactly (:mod:`.shapes`) with 4 × 4 rays per
+  pixel (spread over the pixel by the camera model's local derivatives): coverage is the
+  fraction of rays that hit (and pass the depth test), colour the mean of their shading
+  (Lambert + ambient + bounce as above, plus the target's Blinn-Phong ``specular``), so
+  faces, edges and occluding contours are anti-aliased; their shadows on the ground are
+  cast per frame (2 × 2 shadow rays per ground pixel). Objects of every kind are drawn far
+  to near with a depth test against the clutter and each other. Objects receive no cast
+  shadows (their shaded sides are Lambert's);
 - output: linear RGB → display gamma 2 → 8 bits, plus Gaussian sensor noise (seeded),
   BGR ``uint8``. Fisheye pixels outside the model's valid region or outside
   ``fisheye_fov_deg`` are black.
@@ -42,15 +51,19 @@ import numpy as np
 
 from ..core.camera import CameraModel, Fisheye
 from ..core.frames import FloatArray
+from .shapes import ray_target_ned
 from .world import (
     DETAIL_LEVELS,
     Ball,
     Box,
+    BoxTarget,
     Cylinder,
     Ground,
     GroundTextures,
+    SolidTarget,
     Sphere,
     Sun,
+    Target,
     Tree,
     World,
     ground_textures,
@@ -62,6 +75,11 @@ _T_FAR_M = 1000.0  # ground beyond this range is drawn as horizon haze
 _SUN_PENUMBRA = 2.0 * math.tan(math.radians(0.27))  # penumbra width per metre of shadow ray
 _NOISE_BANK = 1 << 20
 _BALL_SPECULAR = 0.08
+_SPECULAR_EXPONENT = 30
+_SUB = 4  # rays per pixel side for the non-spherical targets
+_SUB_OFF = (np.arange(_SUB) + 0.5) / _SUB - 0.5
+_SUB_U = np.tile(_SUB_OFF, _SUB)
+_SUB_V = np.repeat(_SUB_OFF, _SUB)
 
 
 def _remap_flat(src: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
@@ -155,6 +173,39 @@ class _Layout:
         self.tile_cos = np.cos(radius)
         self.tile_sin = np.sin(radius)
         self._ar = np.arange(self.t2)
+        self._camera = camera
+        self._pixel_axes: tuple[np.ndarray, np.ndarray] | None = None
+        self._pixel_rc: np.ndarray | None = None
+
+    def pixel_axes_cam(self) -> tuple[np.ndarray, np.ndarray]:
+        """(3, N) float32 bearing change across each pixel along u and along v (camera
+        FRD): a ray at ``(u + su, v + sv)`` is about ``b + su·du + sv·dv`` (su, sv in
+        [-½, ½]). Built on first use (only worlds with non-spherical targets need it)."""
+        if self._pixel_axes is None:
+            cam = self._camera
+            u = np.arange(cam.width, dtype=np.float64) + 0.5
+            v = np.arange(cam.height, dtype=np.float64) + 0.5
+            uu, vv = np.meshgrid(u, v)
+
+            def diff(du: float, dv: float) -> np.ndarray:
+                a = cam.bearing_cam_from_pixel(np.stack([uu - du, vv - dv], axis=-1))
+                b = cam.bearing_cam_from_pixel(np.stack([uu + du, vv + dv], axis=-1))
+                d = np.where(np.isfinite(a) & np.isfinite(b), b - a, 0.0)
+                hp, wp = self.tiles_y * self.tile_px, self.tiles_x * self.tile_px
+                out = np.zeros((hp, wp, 3))
+                out[: cam.height, : cam.width] = d
+                return np.ascontiguousarray(self._to_tiles(out).T, dtype=np.float32)
+
+            self._pixel_axes = (diff(0.5, 0.0), diff(0.0, 0.5))
+        return self._pixel_axes
+
+    def pixel_rc(self) -> np.ndarray:
+        """Row and column (2, N) int32 of each tile-major pixel in the padded image."""
+        if self._pixel_rc is None:
+            hp, wp = self.tiles_y * self.tile_px, self.tiles_x * self.tile_px
+            rr, cc = np.mgrid[0:hp, 0:wp].astype(np.int32)
+            self._pixel_rc = np.stack([self._to_tiles(rr), self._to_tiles(cc)])
+        return self._pixel_rc
 
     def _to_tiles(self, a: np.ndarray) -> np.ndarray:
         ts = self.tile_px
@@ -187,6 +238,8 @@ class _Frame:
     colour: np.ndarray  # (3, N) float32 linear RGB
     depth: np.ndarray  # (N,) float32 range along the ray, m
     ground: np.ndarray  # (N,) bool: ray meets the ground within _T_FAR_M
+    R_ned_from_cam: FloatArray | None = None
+    ground_t: np.ndarray | None = None  # (N,) float32 ground range where the ground was drawn
 
 
 # --------------------------------------------------------------------------------------
@@ -380,6 +433,37 @@ class Renderer:
         reproducible as ``rng``.
         """
         lin = self._render_flat(t_s, pos_ned_m, R_ned_from_body)
+        return self._to_bgr(lin, noise_dn, rng)
+
+    def render_with_coverage(
+        self,
+        t_s: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+        noise_dn: float = 2.5,
+        rng: np.random.Generator | None = None,
+    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """:meth:`render`'s image (the same bytes for the same ``rng``) and, per
+        ``object_id``, the object's *visible* coverage (H, W) float32 in [0, 1]: the
+        weight its colour has in each pixel after anti-aliasing and occlusion by the
+        clutter and by nearer objects (absent from the dict: not in view)."""
+        cov: dict[int, np.ndarray] = {}
+        lin = self._render_flat(t_s, pos_ned_m, R_ned_from_body, coverage=cov)
+        return self._to_bgr(lin, noise_dn, rng), cov
+
+    def visible_coverage(
+        self, t_s: float, pos_ned_m: FloatArray, R_ned_from_body: FloatArray
+    ) -> dict[int, np.ndarray]:
+        """Per ``object_id`` the visible coverage of :meth:`render_with_coverage`, without
+        drawing the ground and the sky (about the cost of the objects and the clutter)."""
+        cov: dict[int, np.ndarray] = {}
+        self._render_flat(t_s, pos_ned_m, R_ned_from_body, coverage=cov, background=False)
+        return cov
+
+    def _to_bgr(
+        self, lin: np.ndarray, noise_dn: float, rng: np.random.Generator | None
+    ) -> np.ndarray:
+        """Linear planar colour → display gamma 2 → 8 bits with sensor noise, BGR image."""
         out = lin.reshape(-1)
         np.clip(out, 0.0, 1.0, out=out)
         np.sqrt(out, out=out)
@@ -425,12 +509,51 @@ class Renderer:
         alpha = np.where(self.layout.valid, alpha, 0.0).astype(np.float32)
         return self.layout.to_image(alpha)
 
+    def object_coverage(
+        self,
+        obj: Target,
+        t_s: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+    ) -> np.ndarray:
+        """Anti-aliased coverage (H, W) in [0, 1] of any target at time ``t_s``, ignoring
+        occlusion (the silhouette as the renderer draws it; :meth:`sphere_coverage` for a
+        ball)."""
+        centre = np.asarray(obj.centre_ned_m(t_s), np.float64)
+        if isinstance(obj, Ball):
+            return self.sphere_coverage(centre, obj.radius_m, pos_ned_m, R_ned_from_body)
+        lay = self.layout
+        origin = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
+        R = np.asarray(R_ned_from_body, dtype=np.float64) @ self.camera.R_body_from_cam
+        fr = _Frame(
+            origin=origin,
+            B=R.astype(np.float32) @ lay.bearing_cam,
+            tile_centre=lay.tile_centre_cam @ R.T,
+            colour=np.zeros((3, lay.n), np.float32),
+            depth=np.full(lay.n, np.inf, np.float32),
+            ground=np.zeros(lay.n, bool),
+            R_ned_from_cam=R,
+        )
+        alpha = np.zeros(lay.n, np.float32)
+        drawn = self._draw_target(fr, centre, obj.R_ned_from_obj(t_s), obj)
+        if drawn is not None:
+            alpha[drawn[0]] = drawn[1]
+        alpha[~lay.valid] = 0.0
+        return lay.to_image(alpha)
+
     # ---------------------------------------------------------------------------------
     # Frame
     # ---------------------------------------------------------------------------------
     def _render_flat(
-        self, t_s: float, pos_ned_m: FloatArray, R_ned_from_body: FloatArray
+        self,
+        t_s: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+        coverage: dict[int, np.ndarray] | None = None,
+        background: bool = True,
     ) -> np.ndarray:
+        """Planar linear colour (3, N). ``coverage``: filled with each object's visible
+        coverage image; ``background=False`` skips the ground and the sky."""
         lay = self.layout
         origin = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
         R = np.asarray(R_ned_from_body, dtype=np.float64) @ self.camera.R_body_from_cam
@@ -447,18 +570,39 @@ class Renderer:
             colour=np.zeros((3, lay.n), np.float32),
             depth=np.full(lay.n, np.inf, np.float32),
             ground=ground,
+            R_ned_from_cam=R,
         )
         balls = [(b.centre_ned_m(t_s), b) for b in self.world.balls]
-        if height > 1e-3:
-            self._draw_ground(fr, self._ball_shadows(fr, balls))
-        self._draw_sky(fr, np.nonzero(lay.valid & ~ground)[0])
+        targets = [(tg.centre_ned_m(t_s), tg) for tg in self.world.targets]
+        if background:
+            if height > 1e-3:
+                sunlit = self._ball_shadows(fr, balls)
+                if targets:
+                    sunlit *= self._target_shadows(fr, targets, t_s)
+                self._draw_ground(fr, sunlit)
+            self._draw_sky(fr, np.nonzero(lay.valid & ~ground)[0])
         for box in self.world.buildings:
             self._draw_box(fr, box)
         self._draw_cylinders(fr)
         self._draw_canopies(fr)
-        balls.sort(key=lambda cb: -float(np.linalg.norm(cb[0] - origin)))
-        for centre, ball in balls:
-            self._draw_ball(fr, centre, ball)
+        objects: list[tuple[FloatArray, Target]] = [*balls, *targets]
+        objects.sort(key=lambda cb: -float(np.linalg.norm(cb[0] - origin)))
+        cov = np.zeros((len(objects), lay.n), np.float32) if coverage is not None else None
+        for k, (centre, obj) in enumerate(objects):
+            if isinstance(obj, Ball):
+                drawn = self._draw_ball(fr, centre, obj)
+            else:
+                drawn = self._draw_target(fr, centre, obj.R_ned_from_obj(t_s), obj)
+            if cov is not None and drawn is not None:
+                ii, alpha = drawn
+                a = alpha.astype(np.float32)
+                cov[:k, ii] *= 1.0 - a  # what this object covers, the farther ones lose
+                cov[k, ii] = a
+        if coverage is not None and cov is not None:
+            for k, (_, obj) in enumerate(objects):
+                if np.any(cov[k] > 0):
+                    cov[k, ~lay.valid] = 0.0
+                    coverage[obj.object_id] = lay.to_image(cov[k])
         return fr.colour
 
     # ---------------------------------------------------------------------------------
@@ -608,6 +752,8 @@ class Renderer:
         col += (haze_rgb - col) * haze
         _put(fr.colour, gi, col)
         fr.depth[gi] = t
+        fr.ground_t = np.full(self.layout.n, np.nan, np.float32)
+        fr.ground_t[gi] = t
 
     def _draw_sky(self, fr: _Frame, si: np.ndarray) -> None:
         if si.size == 0:
@@ -825,11 +971,14 @@ class Renderer:
         _put(fr.colour, ii, self._shade(albedo, normal).astype(np.float32))
         fr.depth[ii] = th
 
-    def _draw_ball(self, fr: _Frame, centre: FloatArray, ball: Ball) -> None:
+    def _draw_ball(
+        self, fr: _Frame, centre: FloatArray, ball: Ball
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Draw a ball; returns the pixels it touched and their coverage (or None)."""
         hit_tiles = self._tiles_hit(fr, centre[None, :], np.array([ball.radius_m]))
         tiles = np.nonzero(hit_tiles[:, 0])[0]
         if tiles.size == 0 or np.linalg.norm(centre - fr.origin) <= ball.radius_m:
-            return
+            return None
         idx = self.layout.pixels_of_tiles(tiles)
         b = _take(fr.B, idx).astype(np.float64)
         alpha, th, tc = _sphere_terms(
@@ -841,7 +990,7 @@ class Renderer:
         )
         sel = np.nonzero((alpha > 0) & (tc > 0) & (th < _take(fr.depth, idx)))[0]
         if sel.size == 0:
-            return
+            return None
         ii, bb, th, alpha = _take(idx, sel), _take(b, sel), _take(th, sel), _take(alpha, sel)
         normal = (fr.origin[:, None] + th * bb - centre[:, None]) / ball.radius_m
         albedo = np.asarray(ball.albedo_rgb, np.float32)[:, None]
@@ -851,6 +1000,231 @@ class Renderer:
         spec = np.clip(np.sum(normal * half, axis=0), 0.0, 1.0) ** 30
         col += (_BALL_SPECULAR * self.world.sun.irradiance * spec).astype(np.float32)
         self._blend(fr, ii, col, alpha, th)
+        return ii, alpha
+
+    def _draw_target(
+        self, fr: _Frame, centre: FloatArray, R_ned_from_obj: FloatArray, target: SolidTarget
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Draw a box, cylinder or disc; returns the pixels it touched and their coverage.
+
+        Adaptive anti-aliasing: one ray per pixel first; a pixel whose ray hits (and passes
+        the depth test) like all eight neighbours', on the same face, takes that ray's
+        shading at full coverage; every pixel on a boundary (silhouette, occlusion, face
+        edge) is resolved with 4 × 4 rays. Objects under three pixels thick get the 4 × 4
+        rays everywhere (a sliver could pass between pixel centres).
+        """
+        rb = target.bounding_radius_m
+        hit_tiles = self._tiles_hit(fr, centre[None, :], np.array([rb]))
+        tiles = np.nonzero(hit_tiles[:, 0])[0]
+        if tiles.size == 0:
+            return None
+        lay = self.layout
+        idx = lay.pixels_of_tiles(tiles)
+        v = centre - fr.origin
+        dist = float(np.linalg.norm(v))
+        thin = False
+        if dist > rb * 1.0001:
+            # Only pixels whose bearing is within the bounding cone (plus 1.5 pixels).
+            pix = _take(lay.pix_rad, idx)
+            cos_b = np.clip((v / dist).astype(np.float32) @ _take(fr.B, idx), -1.0, 1.0)
+            keep = np.nonzero(np.arccos(cos_b) <= math.asin(rb / dist) + 1.5 * pix)[0]
+            if keep.size == 0:
+                return None
+            idx = _take(idx, keep)
+            thin = min(target.size_m) / dist < 3.0 * float(_take(pix, keep).max())
+        depth = _take(fr.depth, idx)
+        if fr.ground_t is not None:
+            # Where the ground is what the pixel shows, each ray meets it at its own range:
+            # test against "above the ground" instead of the pixel centre's ground range.
+            depth = np.where(depth == _take(fr.ground_t, idx), np.float32(np.inf), depth)
+        albedo = np.asarray(target.albedo_rgb, np.float32)[:, None]
+        o_down = float(fr.origin[2])
+
+        def visible(
+            t_near: np.ndarray, t_far: np.ndarray, rays: np.ndarray, d: np.ndarray
+        ) -> np.ndarray:
+            """Rays that enter the target in front of the camera, before the depth buffer's
+            range and above the ground."""
+            return (
+                (t_near <= t_far)
+                & (t_near > 0)
+                & (t_near < d)
+                & (o_down + t_near * rays[2] <= 1e-9)
+            )
+
+        def shade(view: np.ndarray, normal: np.ndarray) -> np.ndarray:
+            col = self._shade(albedo, normal)
+            if target.specular > 0:
+                half = self._L[:, None] - view
+                half /= np.sqrt(np.sum(half * half, axis=0))
+                spec = np.clip(np.sum(normal * half, axis=0), 0.0, 1.0) ** _SPECULAR_EXPONENT
+                col += (target.specular * self.world.sun.irradiance * spec).astype(np.float32)
+            return col
+
+        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        if thin:
+            edge = np.arange(idx.size)
+        else:
+            b = _take(fr.B, idx).astype(np.float64)
+            t_near, t_far, normal = ray_target_ned(target, centre, R_ned_from_obj, fr.origin, b)
+            hit = visible(t_near, t_far, b, depth)
+            boundary = self._boundary(idx, hit, normal)
+            inner = np.nonzero(hit & ~boundary)[0]
+            if inner.size:
+                col = shade(_take(b, inner), _take(normal, inner))
+                parts.append((inner, col, np.ones(inner.size), _take(t_near, inner)))
+            edge = np.nonzero(boundary)[0]
+        if edge.size:
+            assert fr.R_ned_from_cam is not None
+            du_cam, dv_cam = lay.pixel_axes_cam()
+            R = fr.R_ned_from_cam
+            pe = _take(idx, edge)
+            rays = (
+                _take(fr.B, pe).astype(np.float64)[:, :, None]
+                + (R @ _take(du_cam, pe).astype(np.float64))[:, :, None] * _SUB_U
+                + (R @ _take(dv_cam, pe).astype(np.float64))[:, :, None] * _SUB_V
+            )
+            rays /= np.sqrt(np.sum(rays * rays, axis=0))
+            s = _SUB * _SUB
+            flat = rays.reshape(3, edge.size * s)
+            t_near, t_far, normal = ray_target_ned(target, centre, R_ned_from_obj, fr.origin, flat)
+            hit = visible(t_near, t_far, flat, np.repeat(_take(depth, edge), s))
+            count = hit.reshape(edge.size, s).sum(axis=1)
+            sel = np.nonzero(count > 0)[0]
+            if sel.size:
+                hi = np.nonzero(hit)[0]
+                col = shade(_take(flat, hi), _take(normal, hi))
+                owner = hi // s
+                acc = np.stack(
+                    [np.bincount(owner, weights=col[c], minlength=edge.size) for c in range(3)]
+                )
+                n_hit = _take(count, sel)
+                colour = (_take(acc, sel) / n_hit).astype(np.float32)
+                t_min = np.where(hit, t_near, np.inf).reshape(edge.size, s).min(axis=1)
+                parts.append((_take(edge, sel), colour, n_hit / float(s), _take(t_min, sel)))
+        if not parts:
+            return None
+        which = np.concatenate([p[0] for p in parts])
+        colour = np.concatenate([p[1] for p in parts], axis=1).astype(np.float32)
+        alpha = np.concatenate([p[2] for p in parts])
+        t_hit = np.concatenate([p[3] for p in parts])
+        ii = _take(idx, which)
+        self._blend(fr, ii, colour, alpha, t_hit)
+        return ii, alpha
+
+    def _boundary(self, idx: np.ndarray, hit: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """(M,) bool: pixels ``idx`` whose hit state differs from an 8-neighbour's, or
+        whose surface normal does (a face edge). Works on the band of image rows the
+        pixels span, plus a margin; columns wrap (the panorama's seam)."""
+        rows, cols = _take(self.layout.pixel_rc(), idx)
+        r_off = int(rows.min()) - 1
+        h = int(rows.max()) - r_off + 2
+        w = self.layout.tiles_x * self.layout.tile_px
+        r = rows - r_off
+        hit_img = np.zeros((h, w), bool)
+        hit_img[r, cols] = hit
+        n_img = np.zeros((3, h, w), np.float32)
+        n_img[:, r, cols] = np.where(hit, normal, 0.0)
+        out = np.zeros((h, w), bool)
+        for dy, dx in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+            nb_hit = np.roll(hit_img, (dy, dx), axis=(0, 1))
+            nb_n = np.roll(n_img, (dy, dx), axis=(1, 2))
+            out |= hit_img != nb_hit
+            out |= hit_img & nb_hit & (np.sum(n_img * nb_n, axis=0) < 0.9)
+        return np.asarray(out[r, cols])
+
+    def _target_shadows(
+        self, fr: _Frame, targets: list[tuple[FloatArray, SolidTarget]], t_s: float
+    ) -> np.ndarray:
+        """(N,) sunlit fraction left by the non-spherical targets' shadows.
+
+        A convex solid's shadow on the ground is the convex hull of its points projected
+        along the sun: a polygon; coverage is ``clip(-d / w + ½, 0, 1)`` with ``d`` the
+        signed distance to the polygon (the largest over its edges), ``w`` the pixel's
+        ground footprint or the sun's penumbra, whichever is wider.
+        """
+        sunlit = np.ones(self.layout.n, np.float32)
+        L = self._L
+        if L[2] > -1e-3:
+            return sunlit
+        feet = [_footprint(c, tg.bounding_radius_m, L) for c, tg in targets]
+        hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
+        for k, (centre, target) in enumerate(targets):
+            tiles = np.nonzero(hit[:, k])[0]
+            if tiles.size == 0:
+                continue
+            idx = self.layout.pixels_of_tiles(tiles)
+            idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
+            if idx.size == 0:
+                continue
+            pts = _outline_points_ned(target, centre, target.R_ned_from_obj(t_s))
+            ground_pts = pts[:, :2] - (pts[:, 2] / L[2])[:, None] * L[None, :2]
+            hull = _convex_hull_2d(ground_pts)
+            _, n, e, foot = self._ground_hits(fr, idx)
+            mid = hull.mean(axis=0)
+            reach = float(np.hypot(*(hull - mid).T).max())
+            rise = max(-float(centre[2]), 0.0) / -float(L[2])
+            pen = max(rise * _SUN_PENUMBRA, 1e-6)
+            near = np.nonzero(np.hypot(n - mid[0], e - mid[1]) < reach + foot + pen)[0]
+            if near.size == 0:
+                continue
+            idx, n, e, foot = _take_all(near, idx, n, e, foot)
+            a = hull
+            bvec = np.roll(hull, -1, axis=0) - hull
+            length = np.maximum(np.hypot(bvec[:, 0], bvec[:, 1]), 1e-12)
+            out_n = np.stack([bvec[:, 1], -bvec[:, 0]], axis=1) / length[:, None]  # CCW hull
+            d = (n.astype(np.float64)[:, None] - a[None, :, 0]) * out_n[None, :, 0] + (
+                e.astype(np.float64)[:, None] - a[None, :, 1]
+            ) * out_n[None, :, 1]
+            dmax = d.max(axis=1)
+            width = np.maximum(foot.astype(np.float64), pen)
+            cover = np.clip(-dmax / width + 0.5, 0.0, 1.0)
+            sunlit[idx] *= (1.0 - cover).astype(np.float32)
+        return sunlit
+
+
+def _outline_points_ned(
+    target: SolidTarget, centre_ned_m: FloatArray, R_ned_from_obj: FloatArray
+) -> FloatArray:
+    """(K, 3) points whose convex hull is the target (box corners, or the two rims)."""
+    if isinstance(target, BoxTarget):
+        hx, hy, hz = target.half_extent_m
+        pts = np.array(
+            [[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+        )
+    else:
+        phi = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
+        rim = np.stack([target.radius_m * np.cos(phi), target.radius_m * np.sin(phi)], axis=1)
+        hh = target.height_m / 2.0
+        pts = np.concatenate(
+            [
+                np.column_stack([rim, np.full(len(phi), -hh)]),
+                np.column_stack([rim, np.full(len(phi), hh)]),
+            ]
+        )
+    return np.asarray(centre_ned_m, np.float64) + pts @ np.asarray(R_ned_from_obj).T
+
+
+def _convex_hull_2d(points: FloatArray) -> FloatArray:
+    """Convex hull (H, 2) of 2-D points, counter-clockwise in (x, y) (Andrew's chain)."""
+    pts = np.unique(np.round(np.asarray(points, np.float64), 9), axis=0).astype(np.float64)
+    if len(pts) < 3:
+        return pts
+
+    def cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+        return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+
+    lower: list[np.ndarray] = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    upper: list[np.ndarray] = []
+    for p in pts[::-1]:
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1], dtype=np.float64)
 
 
 def _sphere_terms(

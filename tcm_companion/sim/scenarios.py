@@ -22,20 +22,51 @@ Scenarios (``SCENARIO_NAMES``):
 - ``HEADON``: the vehicle flies at 1.75 m/s straight at a static ball, range 15 m → 2 m
   (time to contact).
 - ``TWO``: a static ball and, 4 m along the track from it, an oscillating one (T90).
+
+Objects of other kinds (``OBJECT_SCENARIO_NAMES``; see ``docs/simulator.md``): the same
+flights with a car-sized box (``-BOX``), a person-sized upright cylinder (``-CYL``) or a
+small drone (a flat disc, ``-DISC``) instead of the ball — ``TS-``, ``T45-``, ``T90-`` of
+each, ``RAISED-DISC``, ``INPLANE-BOX``, ``COLLISION-CYL``, ``COLLISION-DISC``,
+``HEADON-BOX`` —, scenes that make angular size hard — ``DARKBG`` (balls in front of a
+dark hedge and a dark building), ``BACKLIT`` (a low sun behind the objects),
+``SKY2TREE`` (objects whose background changes from sky to foliage) — and ``MIXED``
+(five objects of four kinds, moving and stationary, hiding each other at times).
+:func:`describe_scenario` says in one line what each shows; :func:`plan_world` builds the
+world a plan flies in (the field, the plan's objects, its extra clutter and sun).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..core.camera import Equirectangular
 from ..core.frames import FloatArray
-from .world import Ball, SineTerm, Trajectory, track_axes, vec3
+from .world import (
+    COLOURS,
+    Ball,
+    Box,
+    BoxTarget,
+    Cylinder,
+    CylinderTarget,
+    DiscTarget,
+    SineTerm,
+    SolidTarget,
+    Sphere,
+    Sun,
+    Target,
+    Trajectory,
+    Tree,
+    World,
+    field_world,
+    track_axes,
+    vec3,
+)
 
-SCENARIO_NAMES: tuple[str, ...] = (
+#: The paper's flights and the traps around them (red balls only).
+PAPER_SCENARIO_NAMES: tuple[str, ...] = (
     "TS",
     "T45",
     "T90",
@@ -45,6 +76,28 @@ SCENARIO_NAMES: tuple[str, ...] = (
     "HEADON",
     "TWO",
 )
+#: Objects of other kinds, and scenes that make angular size hard.
+OBJECT_SCENARIO_NAMES: tuple[str, ...] = (
+    "TS-BOX",
+    "T45-BOX",
+    "T90-BOX",
+    "TS-CYL",
+    "T45-CYL",
+    "T90-CYL",
+    "TS-DISC",
+    "T45-DISC",
+    "T90-DISC",
+    "RAISED-DISC",
+    "INPLANE-BOX",
+    "COLLISION-CYL",
+    "COLLISION-DISC",
+    "HEADON-BOX",
+    "DARKBG",
+    "BACKLIT",
+    "SKY2TREE",
+    "MIXED",
+)
+SCENARIO_NAMES: tuple[str, ...] = PAPER_SCENARIO_NAMES + OBJECT_SCENARIO_NAMES
 
 FPS = 25.0
 HEADING_RAD = math.radians(25.0)  # the track's direction (clockwise from north)
@@ -73,6 +126,13 @@ _DEFAULT_DURATION_S = {
     "HEADON": 7.4,
     "TWO": 40.0,
 }
+
+#: The objects of the non-spherical scenarios (sizes in metres).
+CAR_SIZE_M = (4.2, 1.8, 1.5)
+CRATE_SIZE_M = (1.0, 0.7, 0.5)
+CONTAINER_SIZE_M = (2.0, 2.4, 2.6)
+PERSON_RADIUS_M, PERSON_HEIGHT_M = 0.25, 1.8
+DRONE_RADIUS_M, DRONE_THICKNESS_M = 0.3, 0.1
 
 
 def default_camera() -> Equirectangular:
@@ -166,8 +226,22 @@ def euler_zyx_rad(R_ned_from_body: FloatArray) -> FloatArray:
 
 
 @dataclass(frozen=True)
+class SceneExtras:
+    """What a scenario adds to the paper's field: clutter placed on purpose (behind an
+    object, say) and its own sun. Empty for the paper's scenarios."""
+
+    trees: tuple[Tree, ...] = ()
+    buildings: tuple[Box, ...] = ()
+    sun: Sun | None = None
+
+
+@dataclass(frozen=True)
 class FlightPlan:
-    """One scenario's design: vehicle motion, balls, duration and frame rate."""
+    """One scenario's design: vehicle motion, objects, duration and frame rate.
+
+    ``balls`` are the red spheres, ``targets`` the objects of other shapes; ``objects``
+    lists both in ``object_id`` order. ``extras``: see :class:`SceneExtras`.
+    """
 
     name: str
     description: str
@@ -176,10 +250,33 @@ class FlightPlan:
     balls: tuple[Ball, ...]
     heading_rad: float = HEADING_RAD
     fps: float = FPS
+    targets: tuple[SolidTarget, ...] = ()
+    extras: SceneExtras = SceneExtras()
 
     @property
     def n_frames(self) -> int:
         return max(1, round(self.duration_s * self.fps))
+
+    @property
+    def objects(self) -> tuple[Target, ...]:
+        """Every object, balls and others, in ``object_id`` order."""
+        return tuple(sorted((*self.balls, *self.targets), key=lambda o: o.object_id))
+
+
+def plan_world(plan: FlightPlan) -> World:
+    """The world ``plan`` flies in: :func:`~.world.field_world` with the plan's balls,
+    plus its other objects, extra clutter and sun (the field alone for the paper's)."""
+    world = field_world(plan.balls, plan.heading_rad)
+    ex = plan.extras
+    if not plan.targets and ex == SceneExtras():
+        return world
+    return replace(
+        world,
+        targets=plan.targets,
+        trees=world.trees + ex.trees,
+        buildings=world.buildings + ex.buildings,
+        sun=ex.sun if ex.sun is not None else world.sun,
+    )
 
 
 def _track_point(along_m: float, right_m: float, down_m: float) -> tuple[float, float, float]:
@@ -233,6 +330,8 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
     key = name.upper()
     if key not in SCENARIO_NAMES:
         raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIO_NAMES)}")
+    if key in OBJECT_SCENARIO_NAMES:
+        return _object_plan(key, duration_s, seed)
     duration = float(duration_s) if duration_s is not None else _DEFAULT_DURATION_S[key]
     if not duration > 0:
         raise ValueError(f"duration_s must be positive, got {duration_s!r}")
@@ -308,3 +407,270 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
 def describe_scenario(name: str) -> str:
     """One line saying what scenario ``name`` shows."""
     return flight_plan(name).description
+
+
+# --------------------------------------------------------------------------------------
+# Objects of other kinds, and hard backgrounds
+# --------------------------------------------------------------------------------------
+_OBJECT_DURATION_S = {"COLLISION-CYL": 7.0, "COLLISION-DISC": 7.0, "HEADON-BOX": 7.4}
+_DESCRIPTIONS = {
+    "TS-BOX": "static blue car (4.2×1.8×1.5 m box) parked along the track, 5.5 m to its right",
+    "T45-BOX": "blue car driving ±1 m at 0.35 Hz at 45° to the track, turned along its path",
+    "T90-BOX": "blue car driving ±1 m at 0.35 Hz perpendicular to the track, facing along its path",
+    "TS-CYL": "static person-sized yellow cylinder (r 0.25 m, 1.8 m tall) 3.5 m right of the track",
+    "T45-CYL": "yellow person-sized cylinder walking ±1 m at 0.35 Hz at 45° to the track",
+    "T90-CYL": "yellow person-sized cylinder walking ±1 m at 0.35 Hz perpendicular to the track",
+    "TS-DISC": "static dark-grey drone (disc r 0.3 m, 0.1 m thick) hovering where the TS ball is",
+    "T45-DISC": "dark-grey drone (disc) oscillating ±1 m at 0.35 Hz at 45° to the track",
+    "T90-DISC": "dark-grey drone (disc) oscillating ±1 m at 0.35 Hz perpendicular to the track",
+    "RAISED-DISC": "static white drone hovering 3.75 m up, 2.5 m from the track: its shaded "
+    "underside against the sky, large parallax (BSM's trap)",
+    "INPLANE-BOX": "red crate (1.0×0.7×0.5 m box) at camera altitude oscillating towards/away "
+    "from the track, inside the epipolar plane (ECM's trap)",
+    "COLLISION-CYL": "upright cylinder (r 0.25 m, 1.8 m tall) on a collision course at the "
+    "vehicle's altitude: constant bearing, range 15 m to 1.6 m",
+    "COLLISION-DISC": "dark-grey drone on a collision course: constant bearing, range 15 m to 1.6 m",
+    "HEADON-BOX": "vehicle flying straight at a static white 2.0×2.4×2.6 m box (a container) "
+    "at 1.75 m/s, range to its centre 15 m to 2 m (time to contact)",
+    "DARKBG": "two red balls on dark backgrounds: a static one in front of a dark hedge, one "
+    "oscillating perpendicular to the track in front of a dark building",
+    "BACKLIT": "low sun (12° up) behind the objects: a static ball in front of the sun, an "
+    "oscillating ball and an oscillating white drone, their shaded sides to the camera",
+    "SKY2TREE": "backgrounds changing from sky to foliage: a ball oscillating along the track "
+    "in front of a tree clump's edge, and a static ball whose background crosses it by parallax",
+    "MIXED": "five objects of four kinds: static ball, parked car, a person walking in front of "
+    "it, a hovering and an oscillating drone (objects hide each other at times)",
+}
+
+
+def _standing(along_m: float, right_m: float, height_m: float) -> tuple[float, float, float]:
+    """Centre of an object of height ``height_m`` standing on the ground."""
+    return _track_point(along_m, right_m, -height_m / 2.0)
+
+
+def _dark_tree(
+    along_m: float, right_m: float, crown_r_m: float, crown_h_m: float, trunk_h_m: float
+) -> Tree:
+    """A dark leafy crown on a short trunk (clutter placed behind an object on purpose)."""
+    n, e, _ = _track_point(along_m, right_m, 0.0)
+    trunk = Cylinder((n, e), 0.18, trunk_h_m, (0.06, 0.045, 0.03))
+    crown = Sphere((n, e, -crown_h_m), crown_r_m, (0.012, 0.036, 0.01), leafy=True)
+    return Tree(trunk, (crown,))
+
+
+def _dark_building(
+    along_m: tuple[float, float], right_m: tuple[float, float], height_m: float
+) -> Box:
+    """An axis-aligned (NED) dark building covering the track-coordinate rectangle."""
+    corners = np.array(
+        [_track_point(a, r, 0.0) for a in along_m for r in right_m], dtype=np.float64
+    )
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    return Box(
+        (float(lo[0]), float(lo[1]), -height_m),
+        (float(hi[0]), float(hi[1]), 0.0),
+        wall_albedo_rgb=(0.05, 0.048, 0.045),
+        roof_albedo_rgb=(0.03, 0.03, 0.032),
+        window_albedo_rgb=(0.015, 0.018, 0.025),
+    )
+
+
+def _object_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
+    """The design of one of ``OBJECT_SCENARIO_NAMES`` (see :func:`flight_plan`)."""
+    duration = float(duration_s) if duration_s is not None else _OBJECT_DURATION_S.get(key, 40.0)
+    if not duration > 0:
+        raise ValueError(f"duration_s must be positive, got {duration_s!r}")
+    rng = np.random.default_rng(np.random.SeedSequence([31337, seed]))
+    yaw_terms, roll_terms, pitch_terms = _attitude_terms(rng)
+    wobble = _wobble(rng)
+    phase = float(rng.uniform(0, 2 * math.pi))
+    ax, rt = track_axes(HEADING_RAD)
+    base = key.split("-")[0]
+
+    if base in ("COLLISION", "HEADON"):
+        speed = _COLLISION_VEH_MPS if base == "COLLISION" else _HEADON_SPEED_MPS
+        start_along = -5.25 if base == "COLLISION" else _HEADON_START_ALONG_M
+        path = Trajectory(_track_point(start_along, 0.0, -ALTITUDE_M), vec3(speed * ax), wobble)
+    else:
+        track = SineTerm(vec3(TRACK_HALF_LENGTH_M * ax), TRACK_FREQ_HZ, 0.0)
+        path = Trajectory(_track_point(0.0, 0.0, -ALTITUDE_M), terms=(track, *wobble))
+    vehicle = VehicleMotion(path, HEADING_RAD, yaw_terms, roll_terms, pitch_terms)
+
+    def osc(
+        centre: tuple[float, float, float], direction: tuple[float, float, float], ph: float = 0.0
+    ) -> Trajectory:
+        return Trajectory.oscillation(centre, direction, BALL_AMPLITUDE_M, BALL_FREQ_HZ, phase + ph)
+
+    def paper_motion(centre: tuple[float, float, float]) -> Trajectory:
+        if base == "TS":
+            return Trajectory.static(centre)
+        return osc(centre, _track_dir(1.0, 1.0) if base == "T45" else _track_dir(0.0, 1.0))
+
+    balls: tuple[Ball, ...] = ()
+    targets: tuple[SolidTarget, ...] = ()
+    extras = SceneExtras()
+    if key in ("TS-BOX", "T45-BOX", "T90-BOX"):
+        traj = paper_motion(_standing(0.0, 5.5, CAR_SIZE_M[2]))
+        targets = (
+            BoxTarget(
+                traj,
+                CAR_SIZE_M,
+                COLOURS["blue"],
+                specular=0.15,
+                yaw_rad=HEADING_RAD,
+                yaw_follows_path=not traj.is_static,
+            ),
+        )
+    elif key in ("TS-CYL", "T45-CYL", "T90-CYL"):
+        traj = paper_motion(_standing(0.0, 3.5, PERSON_HEIGHT_M))
+        targets = (CylinderTarget(traj, PERSON_RADIUS_M, PERSON_HEIGHT_M, COLOURS["yellow"]),)
+    elif key in ("TS-DISC", "T45-DISC", "T90-DISC"):
+        traj = paper_motion(_track_point(0.0, 3.5, -1.0))
+        targets = (DiscTarget(traj, DRONE_RADIUS_M, DRONE_THICKNESS_M),)
+    elif key == "RAISED-DISC":
+        targets = (
+            DiscTarget(
+                Trajectory.static(_track_point(0.0, 2.5, -3.75)),
+                DRONE_RADIUS_M,
+                DRONE_THICKNESS_M,
+                COLOURS["white"],
+            ),
+        )
+    elif key == "INPLANE-BOX":
+        traj = osc(_track_point(0.0, 4.0, -ALTITUDE_M), _track_dir(0.0, 1.0))
+        targets = (
+            BoxTarget(
+                traj,
+                CRATE_SIZE_M,
+                COLOURS["red"],
+                specular=0.05,
+                yaw_rad=HEADING_RAD,
+                label="crate",
+            ),
+        )
+    elif base == "COLLISION":
+        v_veh = _COLLISION_VEH_MPS * ax
+        v_obj = _COLLISION_BALL_RIGHT_MPS * rt
+        t_contact = _COLLISION_START_RANGE_M / float(np.linalg.norm(v_veh - v_obj))
+        if duration > t_contact - 0.5:
+            raise ValueError(
+                f"{key} lasts at most {t_contact - 0.5:.2f} s (contact at {t_contact:.2f} s)"
+            )
+        meet = np.asarray(path.origin_ned_m) + v_veh * t_contact
+        traj = Trajectory.linear(vec3(meet - v_obj * t_contact), vec3(v_obj))
+        if key == "COLLISION-CYL":
+            targets = (
+                CylinderTarget(
+                    traj, PERSON_RADIUS_M, PERSON_HEIGHT_M, COLOURS["yellow"], label="cylinder"
+                ),
+            )
+        else:
+            targets = (DiscTarget(traj, DRONE_RADIUS_M, DRONE_THICKNESS_M),)
+    elif key == "HEADON-BOX":
+        t_contact = (_HEADON_BALL_ALONG_M - _HEADON_START_ALONG_M) / _HEADON_SPEED_MPS
+        if duration > t_contact - 0.8:
+            raise ValueError(
+                f"HEADON-BOX lasts at most {t_contact - 0.8:.2f} s "
+                f"(box centre reached at {t_contact:.2f} s)"
+            )
+        centre = _standing(_HEADON_BALL_ALONG_M, 0.25, CONTAINER_SIZE_M[2])
+        targets = (
+            BoxTarget(
+                Trajectory.static(centre),
+                CONTAINER_SIZE_M,
+                COLOURS["white"],
+                yaw_rad=HEADING_RAD,
+                label="container",
+            ),
+        )
+    elif key == "DARKBG":
+        balls = (
+            Ball(Trajectory.static(_track_point(-2.5, 3.5, -1.0)), object_id=1),
+            Ball(osc(_track_point(2.0, 3.5, -2.2), _track_dir(0.0, 1.0)), object_id=2),
+        )
+        hedge = tuple(
+            _dark_tree(a, 6.0, 1.3, 0.9, 0.3) for a in np.arange(-10.0, 1.01, 1.1).tolist()
+        )
+        extras = SceneExtras(
+            trees=hedge, buildings=(_dark_building((1.0, 14.0), (10.0, 13.0), 7.0),)
+        )
+    elif key == "BACKLIT":
+        sun_el_deg = 12.0
+        h = ALTITUDE_M + 4.0 * math.tan(math.radians(sun_el_deg))
+        balls = (
+            Ball(Trajectory.static(_track_point(0.0, 4.0, -h)), object_id=1),
+            Ball(osc(_track_point(3.0, 4.0, -h), _track_dir(0.0, 1.0)), object_id=2),
+        )
+        targets = (
+            DiscTarget(
+                osc(_track_point(-3.0, 4.0, -h - 0.6), _track_dir(1.0, 1.0), 1.0),
+                DRONE_RADIUS_M,
+                DRONE_THICKNESS_M,
+                COLOURS["white"],
+                object_id=3,
+            ),
+        )
+        extras = SceneExtras(
+            sun=Sun(azimuth_deg=math.degrees(HEADING_RAD) + 90.0, elevation_deg=sun_el_deg)
+        )
+    elif key == "SKY2TREE":
+        balls = (
+            Ball(
+                Trajectory.oscillation(
+                    _track_point(-1.0, 6.0, -2.6), _track_dir(1.0, 0.0), 3.0, 0.13, phase
+                ),
+                object_id=1,
+            ),
+            Ball(Trajectory.static(_track_point(1.0, 5.0, -3.6)), object_id=2),
+        )
+        clump = tuple(
+            _dark_tree(a, 15.5 + 0.8 * math.sin(a), 2.1, 5.0 + 0.4 * math.cos(2 * a), 3.0)
+            for a in np.arange(3.5, 14.01, 1.5).tolist()
+        )
+        extras = SceneExtras(trees=clump)
+    elif key == "MIXED":
+        balls = (Ball(Trajectory.static(_track_point(-2.5, 3.5, -1.0)), object_id=1),)
+        targets = (
+            BoxTarget(
+                Trajectory.static(_standing(1.5, 7.5, CAR_SIZE_M[2])),
+                CAR_SIZE_M,
+                COLOURS["blue"],
+                specular=0.15,
+                yaw_rad=HEADING_RAD,
+                object_id=2,
+            ),
+            CylinderTarget(
+                Trajectory.oscillation(
+                    _standing(1.5, 4.8, PERSON_HEIGHT_M), _track_dir(1.0, 0.0), 2.2, 0.06, phase
+                ),
+                PERSON_RADIUS_M,
+                PERSON_HEIGHT_M,
+                COLOURS["yellow"],
+                object_id=3,
+            ),
+            DiscTarget(
+                Trajectory.static(_track_point(-5.0, 4.0, -3.0)),
+                DRONE_RADIUS_M,
+                DRONE_THICKNESS_M,
+                object_id=4,
+            ),
+            DiscTarget(
+                osc(_track_point(4.5, 3.5, -2.6), _track_dir(0.0, 1.0), 2.0),
+                DRONE_RADIUS_M,
+                DRONE_THICKNESS_M,
+                COLOURS["white"],
+                specular=0.2,
+                object_id=5,
+            ),
+        )
+    else:  # pragma: no cover - every name of OBJECT_SCENARIO_NAMES is handled above
+        raise AssertionError(key)
+    return FlightPlan(
+        key,
+        _DESCRIPTIONS[key],
+        duration,
+        vehicle,
+        balls,
+        targets=targets,
+        extras=extras,
+    )

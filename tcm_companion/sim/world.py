@@ -3,9 +3,17 @@
 The scene follows the paper's field test: flat grass at NED ``d = 0`` with stones, dirt
 patches and a dirt path; a sky with a gradient, clouds, a sun disc and distant hills;
 static clutter standing on the ground (trees = trunk cylinder + canopy spheres, thin
-posts, a box building); and one or more saturated red balls whose centres follow a
-:class:`Trajectory`. Everything is in local NED metres; colours are *linear* RGB albedos
+posts, a box building); and the target objects whose centres follow a
+:class:`Trajectory`: saturated red balls (:class:`Ball`, the paper's) and objects of other
+shapes (:class:`BoxTarget` — a car, a crate —, :class:`CylinderTarget` — a person, a post
+—, :class:`DiscTarget` — a small drone), each with its albedo and a little specular
+highlight if asked. Everything is in local NED metres; colours are *linear* RGB albedos
 in [0, 1] (the renderer applies the lighting and the display gamma).
+
+A target's own frame ("obj": x forward, y right, z down, origin at its centre) is the NED
+frame turned by the target's yaw about the vertical (``R_ned_from_obj``); targets do not
+pitch or roll. Their ``size_m`` is the extent along the object's own x, y, z, as in the
+``[[target]]`` tables of the scenario format.
 
 Everything here is hashable, so the procedural textures derived from a :class:`Ground`
 or :class:`Sky` (:func:`ground_textures`, :func:`sky_textures`) are built once per
@@ -23,6 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -147,6 +156,164 @@ class Ball:
     def centre_ned_m(self, t_s: float) -> FloatArray:
         return self.trajectory.position_ned_m(t_s)
 
+    shape: ClassVar[str] = "sphere"
+    label: ClassVar[str] = "ball"
+    specular: ClassVar[float] = 0.08  # the renderer's fixed highlight of a ball
+
+    @property
+    def size_m(self) -> Vec3:
+        """Extent along the object's own axes: the diameter, three times."""
+        d = 2.0 * self.radius_m
+        return (d, d, d)
+
+    @property
+    def bounding_radius_m(self) -> float:
+        return self.radius_m
+
+    def R_ned_from_obj(self, t_s: float) -> FloatArray:
+        """A sphere's frame is NED's (it has no orientation to speak of)."""
+        return np.eye(3)
+
+
+#: Linear albedos of the target colours. Seen under unit irradiance through the
+#: renderer's display gamma 2, a face shows ``255 · sqrt(albedo)`` (e.g. red ≈ 221, 57, 57).
+COLOURS: dict[str, Rgb] = {
+    "red": BALL_ALBEDO_RGB,
+    "blue": (0.035, 0.085, 0.50),
+    "yellow": (0.78, 0.60, 0.035),
+    "white": (0.78, 0.78, 0.76),
+    "dark_grey": (0.045, 0.045, 0.05),
+    "orange": (0.80, 0.22, 0.02),
+}
+
+
+class _Solid:
+    """What every non-spherical target shares: motion, yaw, bounding sphere, truth."""
+
+    trajectory: Trajectory
+    yaw_rad: float
+    yaw_rate_radps: float
+    yaw_follows_path: bool
+
+    @property
+    def moving(self) -> bool:
+        """True when the scenario moves the object (an oscillating one always counts)."""
+        return not self.trajectory.is_static
+
+    def centre_ned_m(self, t_s: float) -> FloatArray:
+        return self.trajectory.position_ned_m(t_s)
+
+    def yaw_at_rad(self, t_s: float) -> float:
+        """Heading of the object's x axis (clockwise from north) at time ``t_s``.
+
+        ``yaw_follows_path``: the heading of the horizontal velocity (of the acceleration
+        where the object stops, at the ends of an oscillation), so a car drives along its
+        path; otherwise ``yaw_rad + yaw_rate_radps · t``.
+        """
+        if self.yaw_follows_path:
+            v = self.trajectory.velocity_ned_mps(t_s)
+            if math.hypot(float(v[0]), float(v[1])) > 0.05:
+                return math.atan2(float(v[1]), float(v[0]))
+            a = self.trajectory.acceleration_ned_mps2(t_s)
+            if math.hypot(float(a[0]), float(a[1])) > 1e-6:
+                return math.atan2(float(a[1]), float(a[0]))
+            return self.yaw_rad
+        return self.yaw_rad + self.yaw_rate_radps * t_s
+
+    def R_ned_from_obj(self, t_s: float) -> FloatArray:
+        """Rotation (3, 3) from the object's frame to NED: a yaw about the vertical."""
+        yaw = self.yaw_at_rad(t_s)
+        c, s = math.cos(yaw), math.sin(yaw)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class BoxTarget(_Solid):
+    """A box target (a car: 4.2 × 1.8 × 1.5 m by default), its length along its yaw.
+
+    ``size_m`` is (length along x, width along y, height along z), centred on the
+    trajectory's point (a car standing on the ground has its centre at ``d = -h/2``).
+    """
+
+    trajectory: Trajectory
+    size_m: Vec3 = (4.2, 1.8, 1.5)
+    albedo_rgb: Rgb = COLOURS["blue"]
+    specular: float = 0.0
+    yaw_rad: float = 0.0
+    yaw_rate_radps: float = 0.0
+    yaw_follows_path: bool = False
+    object_id: int = 1
+    label: str = "car"
+    shape: ClassVar[str] = "box"
+
+    @property
+    def half_extent_m(self) -> Vec3:
+        return (self.size_m[0] / 2.0, self.size_m[1] / 2.0, self.size_m[2] / 2.0)
+
+    @property
+    def bounding_radius_m(self) -> float:
+        return 0.5 * math.sqrt(sum(x * x for x in self.size_m))
+
+
+@dataclass(frozen=True)
+class CylinderTarget(_Solid):
+    """An upright capped cylinder (a person: radius 0.25 m, 1.8 m tall, by default)."""
+
+    trajectory: Trajectory
+    radius_m: float = 0.25
+    height_m: float = 1.8
+    albedo_rgb: Rgb = COLOURS["yellow"]
+    specular: float = 0.0
+    yaw_rad: float = 0.0
+    yaw_rate_radps: float = 0.0
+    yaw_follows_path: bool = False
+    object_id: int = 1
+    label: str = "person"
+    shape: ClassVar[str] = "cylinder"
+
+    @property
+    def size_m(self) -> Vec3:
+        return (2.0 * self.radius_m, 2.0 * self.radius_m, self.height_m)
+
+    @property
+    def bounding_radius_m(self) -> float:
+        return math.hypot(self.radius_m, self.height_m / 2.0)
+
+
+@dataclass(frozen=True)
+class DiscTarget(_Solid):
+    """A flat horizontal disc (a small drone: radius 0.3 m, 0.1 m thick, by default)."""
+
+    trajectory: Trajectory
+    radius_m: float = 0.3
+    thickness_m: float = 0.1
+    albedo_rgb: Rgb = COLOURS["dark_grey"]
+    specular: float = 0.1
+    yaw_rad: float = 0.0
+    yaw_rate_radps: float = 0.0
+    yaw_follows_path: bool = False
+    object_id: int = 1
+    label: str = "drone"
+    shape: ClassVar[str] = "disc"
+
+    @property
+    def height_m(self) -> float:
+        return self.thickness_m
+
+    @property
+    def size_m(self) -> Vec3:
+        return (2.0 * self.radius_m, 2.0 * self.radius_m, self.thickness_m)
+
+    @property
+    def bounding_radius_m(self) -> float:
+        return math.hypot(self.radius_m, self.thickness_m / 2.0)
+
+
+#: Non-spherical targets (the renderer draws them with sub-sampled rays).
+SolidTarget = BoxTarget | CylinderTarget | DiscTarget
+#: Any target object: what truth.csv, ``[[target]]`` and the detector simulator describe.
+Target = Ball | BoxTarget | CylinderTarget | DiscTarget
+
 
 @dataclass(frozen=True)
 class Sphere:
@@ -254,9 +421,15 @@ class World:
     posts: tuple[Cylinder, ...] = ()
     buildings: tuple[Box, ...] = ()
     balls: tuple[Ball, ...] = ()
+    targets: tuple[SolidTarget, ...] = ()
 
     def with_balls(self, balls: tuple[Ball, ...]) -> World:
         return replace(self, balls=tuple(balls))
+
+    @property
+    def objects(self) -> tuple[Target, ...]:
+        """Every target object, balls and others, in ``object_id`` order."""
+        return tuple(sorted((*self.balls, *self.targets), key=lambda o: o.object_id))
 
 
 # --------------------------------------------------------------------------------------

@@ -370,7 +370,7 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
     from .io.outputs import atomic_path
 
     with atomic_path(args.dir, force=args.force, is_dir=True) as tmp:
-        export_scenario(sim, tmp)
+        export_scenario(sim, tmp, detections=args.detections or None)
     print(
         f"wrote {sim.name}: {sim.n_frames} frames, {sim.camera.model_name} "
         f"{sim.camera.width}x{sim.camera.height} -> {args.dir}"
@@ -382,7 +382,7 @@ def cmd_sim_list(_args: argparse.Namespace) -> int:
     from .sim.scenarios import SCENARIO_NAMES, describe_scenario
 
     for name in SCENARIO_NAMES:
-        print(f"{name:<10} {describe_scenario(name)}")
+        print(f"{name:<15} {describe_scenario(name)}")
     return 0
 
 
@@ -536,6 +536,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--force",
         action="store_true",
         help="replace the output if it exists (it is written beside it and renamed into place when complete)",
+    )
+    e.add_argument(
+        "--detections",
+        action="store_true",
+        help="also write detections.csv: boxes from the simulated detector (jitter, misses,"
+        " false boxes; tcm_companion/sim/detector_sim.py)",
     )
     e.add_argument("--camera", choices=("panorama", "pinhole", "fisheye"), default=None)
     e.add_argument("--resolution", type=_resolution, default=None, metavar="WxH")

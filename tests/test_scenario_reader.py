@@ -121,3 +121,41 @@ def test_video_scenario(broken: Path, tmp_path: Path) -> None:
     v = load_scenario(broken)
     frames = list(v.iter_frames())
     assert len(frames) == 30 and frames[0][2].shape == (480, 640, 3)
+
+
+def test_targets_and_detections_are_read(broken: Path) -> None:
+    assert load_scenario(broken).targets == [] and load_scenario(broken).detections is None
+    with open(broken / "scenario.toml", "a") as fh:
+        fh.write(
+            '\n[[target]]\nobject_id = 1\nshape = "box"\n'
+            "colour_rgb = [40, 70, 190]\nsize_m = [1.8, 0.8, 1.5]\n"
+        )
+    (broken / "detections.csv").write_text(
+        "frame,x_min,y_min,x_max,y_max,score,label\n0,10.5,20,40,60,0.9,car\n2,11,21,41,61,0.8,\n"
+    )
+    s = load_scenario(broken)
+    assert [(t.object_id, t.shape, t.colour_rgb, t.size_m) for t in s.targets] == [
+        (1, "box", (40, 70, 190), (1.8, 0.8, 1.5))
+    ]
+    assert s.detections is not None
+    assert [(d.frame, d.x_min, d.score, d.label) for d in s.detections] == [
+        (0, 10.5, 0.9, "car"),
+        (2, 11.0, 0.8, ""),
+    ]
+
+
+@pytest.mark.parametrize(
+    "row, message",
+    [
+        ("5,40,20,10,60,0.9,car", r"line 3: x_max \(10\) must exceed x_min \(40\)"),  # pinhole
+        ("1,10,20,40,60,1.5,car", r"line 3: score must be in \[0, 1\]"),
+        ("99,10,20,40,60,0.5,car", r"line 3: frame 99 is not in frames.csv"),
+        ("0,10,20,40,600,0.5,car", r"line 3: box .* leaves the 640x480 image"),
+    ],
+)
+def test_malformed_detections_name_the_line(broken: Path, row: str, message: str) -> None:
+    (broken / "detections.csv").write_text(
+        f"frame,x_min,y_min,x_max,y_max,score,label\n0,1,2,3,4,0.5,x\n{row}\n"
+    )
+    with pytest.raises(ScenarioError, match=r"detections\.csv: " + message):
+        load_scenario(broken)

@@ -13,15 +13,18 @@ import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
-from ..core.camera import CameraModel, CameraModelError, camera_from_dict
+from ..core.camera import CameraModel, CameraModelError, Equirectangular, camera_from_dict
 from ..core.telemetry import AttitudeSample, PositionSample, TelemetrySample
 from .samples import sample_from_message
 from .tlog import TlogError, TlogStats, read_tlog
+
+if TYPE_CHECKING:
+    from .scenario_extras import Detection, TargetSpec
 
 FORMAT = "tcm-scenario/1"
 FRAMES_HEADER = ["frame", "t_us"]
@@ -77,6 +80,10 @@ class Scenario:
     frames_dir: Path | None = None
     video: Path | None = None
     warnings: list[str] = field(default_factory=list)
+    # what the objects look like ([[target]]; empty: saturated red spheres)
+    targets: list[TargetSpec] = field(default_factory=list)
+    # boxes of an external detector (detections.csv), in frame order; None: no file
+    detections: list[Detection] | None = None
 
     @property
     def n_frames(self) -> int:
@@ -244,6 +251,19 @@ def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
     truth_path = root / "truth.csv"
     truth = _read_truth_csv(truth_path, len(times)) if truth_path.is_file() else None
 
+    from .scenario_extras import read_detections_csv, read_targets
+
+    targets = read_targets(root)
+    det_path = root / "detections.csv"
+    detections = None
+    if det_path.is_file():
+        full_panorama = isinstance(camera, Equirectangular) and math.isclose(
+            camera.azimuth_max_deg - camera.azimuth_min_deg, 360.0
+        )
+        detections = read_detections_csv(
+            det_path, len(times), (camera.width, camera.height), wraps=full_panorama
+        )
+
     scenario = Scenario(
         root=root,
         name=name,
@@ -256,6 +276,8 @@ def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
         frames_dir=frames_dir,
         video=video,
         warnings=warnings,
+        targets=targets,
+        detections=detections,
     )
     if check_frames and frames_dir is not None and len(times):
         scenario.read_frame(0)

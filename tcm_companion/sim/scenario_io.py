@@ -1,10 +1,5 @@
-"""The scenario format's optional ``[[target]]`` tables and ``detections.csv``: write and read.
-
-``sim export`` writes both (:func:`targets_toml`, :func:`write_detections_csv`); the
-readers (:func:`read_targets`, :func:`read_detections_csv`) follow the reader's rule for
-malformed input — a :class:`~tcm_companion.io.scenario.ScenarioError` naming the file,
-the line and the problem — and are meant to move into ``io/scenario.py`` when the
-scenario reader learns these two files.
+"""The scenario format's optional ``[[target]]`` tables and ``detections.csv``, from the
+simulator's objects (the format itself, readers included, is ``io/scenario_extras.py``).
 
 ``[[target]]`` (one table per object, in ``object_id`` order; absent: saturated red
 spheres): ``object_id``, ``shape`` (sphere, box, cylinder, disc, other), ``colour_rgb``
@@ -19,30 +14,33 @@ frame order; continuous pixel coordinates; a panorama box across the ±180° sea
 
 from __future__ import annotations
 
-import csv
 import math
-import re
-import tomllib
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
-from ..io.scenario import ScenarioError
+from ..io.scenario_extras import (
+    DETECTIONS_HEADER,
+    SHAPES,
+    Detection,
+    TargetSpec,
+    read_detections_csv,
+    read_targets,
+    write_detections_csv,
+)
 from .world import BALL_ALBEDO_RGB, BALL_RADIUS_M, Ball, Target
 
-SHAPES = ("sphere", "box", "cylinder", "disc", "other")
-DETECTIONS_HEADER = ["frame", "x_min", "y_min", "x_max", "y_max", "score", "label"]
-
-
-@dataclass(frozen=True)
-class TargetSpec:
-    """One ``[[target]]`` table."""
-
-    object_id: int
-    shape: str
-    colour_rgb: tuple[int, int, int]
-    size_m: tuple[float, float, float]
+__all__ = [
+    "DETECTIONS_HEADER",
+    "SHAPES",
+    "Detection",
+    "TargetSpec",
+    "colour_rgb_from_albedo",
+    "is_default_target",
+    "read_detections_csv",
+    "read_targets",
+    "target_spec",
+    "targets_toml",
+    "write_detections_csv",
+]
 
 
 def colour_rgb_from_albedo(albedo_rgb: Sequence[float]) -> tuple[int, int, int]:
@@ -89,208 +87,3 @@ def targets_toml(objects: Iterable[Target]) -> str:
             "size_m = [{}]".format(", ".join(repr(float(x)) for x in spec.size_m)),
         ]
     return "\n".join(out) + "\n"
-
-
-def read_targets(root: str | Path) -> list[TargetSpec]:
-    """The ``[[target]]`` tables of scenario directory ``root`` ([] when there are none)."""
-    path = Path(root) / "scenario.toml"
-    try:
-        text = path.read_text(encoding="utf-8")
-        meta = tomllib.loads(text)
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: missing (every scenario needs one)") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: {exc}") from None
-    tables = meta.get("target")
-    if tables is None:
-        return []
-    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-        raise ScenarioError(f"{path}: target must be an array of tables ([[target]])")
-    header_lines = [
-        i + 1
-        for i, line in enumerate(text.splitlines())
-        if re.match(r"\s*\[\[\s*target\s*\]\]", line)
-    ]
-    specs: list[TargetSpec] = []
-    for k, table in enumerate(tables):
-        line = header_lines[k] if k < len(header_lines) else 0
-        where = (
-            f"{path}: line {line}: [[target]] {k + 1}" if line else f"{path}: [[target]] {k + 1}"
-        )
-        specs.append(_target_from_table(table, where))
-    ids = [s.object_id for s in specs]
-    for k in range(1, len(ids)):
-        if ids[k] <= ids[k - 1]:
-            raise ScenarioError(
-                f"{path}: [[target]] tables must be in object_id order "
-                f"(object_id {ids[k]} after {ids[k - 1]})"
-            )
-    return specs
-
-
-def _target_from_table(table: dict[str, Any], where: str) -> TargetSpec:
-    known = {"object_id", "shape", "colour_rgb", "size_m"}
-    for key in table:
-        if key not in known:
-            raise ScenarioError(f"{where}: unknown key {key!r} (known: {', '.join(sorted(known))})")
-    for key in sorted(known):
-        if key not in table:
-            raise ScenarioError(f"{where}: missing {key}")
-    oid = table["object_id"]
-    if not isinstance(oid, int) or isinstance(oid, bool):
-        raise ScenarioError(f"{where}: object_id must be an integer, got {oid!r}")
-    shape = table["shape"]
-    if shape not in SHAPES:
-        raise ScenarioError(f"{where}: shape must be one of {', '.join(SHAPES)}, got {shape!r}")
-    colour = table["colour_rgb"]
-    if (
-        not isinstance(colour, list)
-        or len(colour) != 3
-        or not all(isinstance(c, int) and not isinstance(c, bool) and 0 <= c <= 255 for c in colour)
-    ):
-        raise ScenarioError(f"{where}: colour_rgb must be three integers 0..255, got {colour!r}")
-    size = table["size_m"]
-    if (
-        not isinstance(size, list)
-        or len(size) != 3
-        or not all(
-            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and x > 0
-            for x in size
-        )
-    ):
-        raise ScenarioError(f"{where}: size_m must be three positive numbers, got {size!r}")
-    return TargetSpec(
-        object_id=oid,
-        shape=str(shape),
-        colour_rgb=(colour[0], colour[1], colour[2]),
-        size_m=(float(size[0]), float(size[1]), float(size[2])),
-    )
-
-
-# --------------------------------------------------------------------------------------
-# detections.csv
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Detection:
-    """One row of ``detections.csv``.
-
-    ``object_id`` and ``image_frame`` are the simulator's truth and are not written:
-    which object the box was made from (0: a false box) and which frame's image it
-    describes (``frame - latency``; -1 for a false box or a box read from a file).
-    """
-
-    frame: int
-    x_min: float
-    y_min: float
-    x_max: float
-    y_max: float
-    score: float
-    label: str
-    object_id: int = 0
-    image_frame: int = -1
-
-
-def write_detections_csv(path: str | Path, detections: Iterable[Detection]) -> None:
-    """Write ``detections`` (in frame order) as ``detections.csv``."""
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(DETECTIONS_HEADER)
-        for d in detections:
-            w.writerow(
-                [
-                    d.frame,
-                    f"{d.x_min:.3f}",
-                    f"{d.y_min:.3f}",
-                    f"{d.x_max:.3f}",
-                    f"{d.y_max:.3f}",
-                    f"{d.score:.3f}",
-                    d.label,
-                ]
-            )
-
-
-def read_detections_csv(
-    path: str | Path,
-    n_frames: int | None = None,
-    image_size: tuple[int, int] | None = None,
-    wraps: bool = False,
-) -> list[Detection]:
-    """Read ``detections.csv``; a malformed row is a ScenarioError with file and line.
-
-    ``n_frames``: frames must be below it; ``image_size`` (W, H): coordinates must lie in
-    the image; ``wraps`` (a full panorama): ``x_min > x_max`` is a box across the seam,
-    elsewhere it is an error.
-    """
-    path = Path(path)
-    out: list[Detection] = []
-    try:
-        fh = open(path, newline="", encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: missing") from None
-    with fh:
-        reader = csv.reader(fh)
-        try:
-            first = next(reader, None)
-            if first is None or [h.strip() for h in first] != DETECTIONS_HEADER:
-                raise ScenarioError(
-                    f"{path}: line 1: header must be {','.join(DETECTIONS_HEADER)!r}, got {first!r}"
-                )
-            for row in reader:
-                if not row or all(not c.strip() for c in row):
-                    continue
-                out.append(_detection_row(path, reader.line_num, row, n_frames, image_size, wraps))
-                if len(out) > 1 and out[-1].frame < out[-2].frame:
-                    raise ScenarioError(
-                        f"{path}: line {reader.line_num}: frame {out[-1].frame} after frame "
-                        f"{out[-2].frame} (rows must be in frame order)"
-                    )
-        except UnicodeDecodeError:
-            raise ScenarioError(f"{path}: not UTF-8 text") from None
-    return out
-
-
-def _detection_row(
-    path: Path,
-    line: int,
-    row: list[str],
-    n_frames: int | None,
-    image_size: tuple[int, int] | None,
-    wraps: bool,
-) -> Detection:
-    if len(row) != len(DETECTIONS_HEADER):
-        raise ScenarioError(
-            f"{path}: line {line}: expected {len(DETECTIONS_HEADER)} fields, got {len(row)}"
-        )
-    where = f"{path}: line {line}"
-    try:
-        frame = int(row[0].strip())
-    except ValueError:
-        raise ScenarioError(f"{where}: frame must be an integer, got {row[0]!r}") from None
-    if frame < 0 or (n_frames is not None and frame >= n_frames):
-        raise ScenarioError(f"{where}: frame {frame} is not in frames.csv")
-    vals: list[float] = []
-    for name, text in zip(DETECTIONS_HEADER[1:6], row[1:6]):
-        try:
-            v = float(text)
-        except ValueError:
-            raise ScenarioError(f"{where}: {name} must be a number, got {text!r}") from None
-        if not math.isfinite(v):
-            raise ScenarioError(f"{where}: {name} must be finite, got {text!r}")
-        vals.append(v)
-    x0, y0, x1, y1, score = vals
-    if not 0.0 <= score <= 1.0:
-        raise ScenarioError(f"{where}: score must be in [0, 1], got {score:g}")
-    if not y1 > y0:
-        raise ScenarioError(f"{where}: y_max ({y1:g}) must exceed y_min ({y0:g})")
-    if x1 == x0 or (x1 < x0 and not wraps):
-        raise ScenarioError(
-            f"{where}: x_max ({x1:g}) must exceed x_min ({x0:g})"
-            + ("" if wraps else " (only a full panorama's boxes may cross the seam)")
-        )
-    if image_size is not None:
-        w, h = image_size
-        if not (0 <= x0 <= w and 0 <= x1 <= w and 0 <= y0 <= h and 0 <= y1 <= h):
-            raise ScenarioError(
-                f"{where}: box ({x0:g}, {y0:g}, {x1:g}, {y1:g}) leaves the {w}x{h} image"
-            )
-    return Detection(frame, x0, y0, x1, y1, score, row[6].strip())

@@ -1,14 +1,17 @@
-"""Process replay of a flight log: the logged inputs through the core, again.
+"""Process replay of a flight log: the logged inputs through the companion, again.
 
 openpilot's process replay, for our daemon: the log holds every MAVLink byte received
 (with its receive time), every camera frame (lossless with ``[logging] image_format =
 "png"``) and, per processed frame, when it was processed, the clock offset the pipeline
-used and the input-health override. Replaying feeds the received bytes through a fresh
-:class:`~tcm_companion.mavlink.endpoint.CompanionEndpoint` (so telemetry filtering and
-parameter changes from the ground station happen as they did), hands the resulting
-samples to a fresh :class:`~tcm_companion.core.pipeline.Pipeline` in the same order, and
-steps it on the same frames at the same points — so with lossless frames the replayed
-results equal the logged ones exactly (``tests/test_log_replay.py``).
+used and the input-health override. Replaying drives a fresh
+:class:`~tcm_companion.service.companion.Companion` — the daemon's own decisions, on a
+fresh :class:`~tcm_companion.mavlink.endpoint.CompanionEndpoint` — with the received
+bytes in the order and at the times they came (so telemetry filtering, parameter changes
+from the ground station and the pipeline rebuilds they cause happen as they did), and
+steps each logged frame at the point it was processed
+(:meth:`~tcm_companion.service.companion.Companion.replay_frame`, with the logged clock
+offset and override) — so with lossless frames the replayed results equal the logged ones
+exactly (``tests/test_log_replay.py``).
 
 Exactly means on the same install and machine. Elsewhere the last bits can move: numpy's
 bundled OpenBLAS picks its kernels by CPU (or ``OPENBLAS_CORETYPE``), numpy picks SIMD
@@ -31,30 +34,15 @@ import cv2
 import numpy as np
 
 from .config import AppConfig, config_from_dict
-from .core.camera import camera_from_dict
-from .core.pipeline import FrameResult, Pipeline
-from .core.telemetry import ClockSync, TelemetryBuffer
-from .mavlink.endpoint import CompanionEndpoint, TelemetryReceived
-from .mavlink.params import config_with_params
-from .service.companion import mark_unknown
+from .core.camera import CameraModel, camera_from_dict
+from .core.pipeline import FrameResult
+from .io import topics as log_topics
+from .mavlink.endpoint import CompanionEndpoint
+from .service.companion import Companion
 
 
 class LogReplayError(ValueError):
     """The log cannot be replayed (no metadata, no frames, an unknown camera)."""
-
-
-class ReplayClock(ClockSync):
-    """The telemetry clock fit, or the offset the live pipeline used for this frame."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.forced: float | None = None
-
-    @property
-    def offset_us(self) -> float:
-        if self.forced is not None and math.isfinite(self.forced):
-            return self.forced
-        return super().offset_us
 
 
 @dataclass(frozen=True)
@@ -83,6 +71,21 @@ def log_config(path: str | Path) -> tuple[AppConfig, dict[str, float]]:
     return config, params
 
 
+def _cameras(meta: dict[str, str], where: Path) -> tuple[list[CameraModel], list[str]]:
+    """Every camera of the log, in order (camera0, camera1, ...), and their names."""
+    models: list[CameraModel] = []
+    while f"camera{len(models)}" in meta:
+        key = f"camera{len(models)}"
+        models.append(camera_from_dict(json.loads(meta[key]), where=f"{where}: {key}"))
+    try:
+        names = [str(n) for n in json.loads(meta.get("cameras", "[]"))]
+    except ValueError:
+        names = []
+    if len(names) != len(models):
+        names = [f"camera{i}" for i in range(len(models))]
+    return models, names
+
+
 def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
     """Yield every processed frame of camera ``camera_id`` of the log, recomputed."""
     from .io.flightlog import decode_image, decode_json, read_log
@@ -90,31 +93,24 @@ def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
     p = Path(path)
     meta = _metadata(p)
     config, params = log_config(p)
-    cam_key = f"camera{camera_id}"
-    if cam_key not in meta:
+    models, names = _cameras(meta, p)
+    if not 0 <= camera_id < len(models):
         raise LogReplayError(f"{p}: no camera {camera_id} in the log's metadata")
-    camera = camera_from_dict(json.loads(meta[cam_key]), where=f"{p}: {cam_key}")
     cv2.setNumThreads(max(0, config.daemon.opencv_threads))
 
     endpoint = CompanionEndpoint(config.mavlink.endpoint, params)
-    base = config.pipeline
-    pipe_cfg = config_with_params(base, endpoint.params.values)
-    clock = ReplayClock()
-    telemetry = TelemetryBuffer(clock=clock)
-    pipe = Pipeline(camera, pipe_cfg, telemetry=telemetry)
+    companion: Companion | None = None
     images: dict[int, np.ndarray] = {}
-    image_topic = f"/camera{camera_id}/image"
-    topics = {"/mavlink/in", image_topic, "/tcm/result"}
+    image_topic = log_topics.camera_image(camera_id)
+    topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT}
     for rec in read_log(p, topics):
-        t_us = rec.publish_time_ns // 1000
-        if rec.topic == "/mavlink/in":
-            for ev in endpoint.receive_data(rec.data, t_us):
-                if isinstance(ev, TelemetryReceived):
-                    telemetry.add(ev.sample)
-            new_cfg = config_with_params(base, endpoint.params.values)
-            if new_cfg != pipe_cfg:  # a GCS changed a parameter: rebuilt as in flight
-                pipe_cfg = new_cfg
-                pipe = Pipeline(camera, pipe_cfg, telemetry=telemetry)
+        t_mono_us = rec.publish_time_ns // 1000
+        if companion is None:
+            companion = Companion(
+                models, config.pipeline, endpoint, t_mono_us, config.daemon, names
+            )
+        if rec.topic == log_topics.MAVLINK_IN:
+            companion.receive_data(rec.data, t_mono_us)
         elif rec.topic == image_topic:
             _, t_capture, image = decode_image(rec)
             images[t_capture] = image
@@ -132,11 +128,16 @@ def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
                     f"{p}: frame at {t_capture} us was processed but is not in the log"
                 )
             offset = doc.get("clock_offset_us")
-            clock.forced = float(offset) if offset is not None else None
-            result = pipe.step(frame_image, t_capture)
-            clock.forced = None
-            if doc.get("override"):
-                result = mark_unknown(result, str(doc["override"]))
+            result = companion.replay_frame(
+                camera_id,
+                frame_image,
+                t_capture,
+                int(doc.get("t_process_us", t_mono_us)),
+                clock_offset_us=float(offset) if offset is not None else None,
+                override=str(doc.get("override") or ""),
+            )
+            if result is None:
+                raise LogReplayError(f"{p}: the pipeline raised on the frame at {t_capture} us")
             yield ReplayedFrame(doc, result)
 
 

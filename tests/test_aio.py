@@ -61,3 +61,24 @@ def test_returns_true_when_set_and_false_on_timeout() -> None:
     assert got is True
     assert timed_out is False
     assert waited_s >= 0.05
+
+
+def test_the_monotonic_clock_waits_until_its_own_deadline() -> None:
+    """Stamps and waits are on one clock: a wait ends when *that* clock reaches the
+    deadline (the loop's timers may fire a little early), or when the event is set."""
+    from tcm_companion.io.aio import MONOTONIC
+
+    async def go() -> tuple[bool, int, bool, bool]:
+        event = asyncio.Event()
+        deadline = MONOTONIC.now_us() + 30_000
+        timed_out = await MONOTONIC.wait_until(event, deadline)
+        late_us = MONOTONIC.now_us() - deadline
+        asyncio.get_running_loop().call_later(0.01, event.set)
+        woken = await MONOTONIC.wait_until(event, MONOTONIC.now_us() + 5_000_000)
+        already = await MONOTONIC.wait_until(event, 0)  # set: at once, not cleared
+        await MONOTONIC.wait_until(None, MONOTONIC.now_us() + 1_000)
+        return timed_out, late_us, woken, already
+
+    timed_out, late_us, woken, already = asyncio.run(go())
+    assert timed_out is False and late_us >= 0
+    assert woken is True and already is True

@@ -1,29 +1,33 @@
 """The daemon's logic without IO (service/companion.py), on a simulated flight and a fake clock.
 
-Each test drives a :class:`Companion` the way the daemon does — telemetry events as they
-are received, frames at their capture times, a tick every second — and reads what the
-endpoint would have sent to the autopilot.
+Each test drives a :class:`Companion` through its surface only, the way the daemon does:
+telemetry as it is received, frames as cameras deliver them (``on_frame``), and
+``process_due`` at every deadline the Companion names (``next_deadline_us``), in time
+order (:class:`Driver`), reading what it would have sent to the autopilot
+(``data_to_send``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
 import pytest
 
 from tcm_companion.core.camera import Equirectangular
-from tcm_companion.core.pipeline import PipelineConfig
+from tcm_companion.core.pipeline import Pipeline, PipelineConfig
 from tcm_companion.core.telemetry import AttitudeSample, PositionSample
 from tcm_companion.mavlink import tcm_dialect as d
-from tcm_companion.mavlink.endpoint import (
-    CompanionEndpoint,
-    ParamChanged,
-    TelemetryReceived,
-    TelemetryRejected,
+from tcm_companion.mavlink.endpoint import CompanionEndpoint, TelemetryReceived, TelemetryRejected
+from tcm_companion.service.companion import (
+    Companion,
+    DaemonConfig,
+    FrameProcessed,
+    HealthChecked,
+    ParamsChanged,
 )
-from tcm_companion.service.companion import Companion, DaemonConfig
 from tcm_companion.sim.export import SimulatedScenario
 from tcm_companion.sim.scenarios import flight_plan
 
@@ -43,8 +47,15 @@ def decode(data: bytes) -> list[Any]:
     return [m for m in (mav.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
 
 
+def gcs_bytes(msg: Any) -> bytes:
+    """``msg`` as a ground station (255/190) would send it."""
+    mav = d.MAVLink(None, srcSystem=255, srcComponent=190)
+    return bytes(msg.pack(mav))
+
+
 class Driver:
-    """Feeds a companion like the daemon: telemetry by receive time, frames, ticks."""
+    """Feeds a companion like the daemon, in time order: telemetry at its receive time,
+    each frame 1 ms after capture, and ``process_due`` whenever it is due."""
 
     def __init__(
         self,
@@ -60,42 +71,70 @@ class Driver:
         self.companion = Companion(
             [CAMERA], PipelineConfig(), self.endpoint, t0, config or DaemonConfig()
         )
+        self.now = t0
         self.j = 0
-        self.next_tick = t0 + 1_000_000
         self.sent: list[Any] = []
-        self.results: list[Any] = []
+        self.outputs: list[Any] = []
+        self.results: list[Any] = []  # per frame processed: its result (None: it failed)
+        self.keep: Any = lambda s: True
+        self.nan_attitude = False
 
-    def telemetry_until(self, t_us: int, keep: Any = lambda s: True, nan_attitude: bool = False):
-        while self.j < len(self.telemetry) and self.telemetry[self.j].recv_us <= t_us:
-            s = self.telemetry[self.j]
-            self.j += 1
-            if not keep(s):
-                continue
-            if nan_attitude and isinstance(s, AttitudeSample):
-                self.companion.handle_events([TelemetryRejected("attitude", "NaN")], s.recv_us)
-                continue
-            # As the endpoint does when it receives telemetry: its clock fit.
-            self.endpoint.telemetry_clock.observe(s.time_boot_us, s.recv_us)
-            self.companion.handle_events([TelemetryReceived(s)], s.recv_us)
+    # -- the event loop ----------------------------------------------------------------
+    def _telemetry(self, s: Any) -> None:
+        if not self.keep(s):
+            return
+        if self.nan_attitude and isinstance(s, AttitudeSample):
+            self.companion.on_events([TelemetryRejected("attitude", "NaN")], s.recv_us)
+            return
+        # As the endpoint does when it receives telemetry: its clock fit.
+        self.endpoint.telemetry_clock.observe(s.time_boot_us, s.recv_us)
+        self.companion.on_events([TelemetryReceived(s)], s.recv_us)
 
-    def run(self, first: int, last: int, **kw: Any) -> None:
+    def turn(self, now: int) -> list[Any]:
+        outs = self.companion.process_due(now)
+        self.outputs += outs
+        self.results += [o.result for o in outs if isinstance(o, FrameProcessed)]
+        self.sent += decode(self.companion.data_to_send())
+        return outs
+
+    def advance(self, until_us: int) -> None:
+        """Telemetry arrivals and the companion's deadlines up to ``until_us``, in order."""
+        while True:
+            tel = self.telemetry[self.j].recv_us if self.j < len(self.telemetry) else math.inf
+            due = max(self.companion.next_deadline_us(), self.now)
+            t = min(tel, due)
+            if t > until_us:
+                break
+            self.now = int(t)
+            if tel <= due:
+                self.j += 1
+                self._telemetry(self.telemetry[self.j - 1])
+            else:
+                self.turn(self.now)
+        self.now = max(self.now, until_us)
+
+    def run(self, first: int, last: int, keep: Any = None, nan_attitude: bool = False) -> None:
+        self.keep = keep or (lambda s: True)
+        self.nan_attitude = nan_attitude
         for i in range(first, last):
             t = int(self.scenario.frame_times_us[i])
-            self.telemetry_until(t + 5_000, **kw)
-            while self.next_tick <= t:
-                self.companion.tick(self.next_tick)
-                self.endpoint.poll(self.next_tick)
-                self.next_tick += 1_000_000
-            self.companion.note_frame_arrival(0, t + 1_000)
-            self.results.append(self.companion.process(0, self.frames[i], t, t + 3_000))
-            self.endpoint.poll(t + 3_000)  # the link's timer polls about this often
-            self.sent += decode(self.endpoint.data_to_send())
+            self.advance(t + 1_000)
+            n = len(self.results)
+            self.companion.on_frame(0, self.frames[i], t, t + 1_000)
+            # Until it is processed (at once, or after its bounded wait for the attitude).
+            self.advance(t + 1_000 + self.companion.config.attitude_wait_max_us)
+            assert len(self.results) == n + 1
+        self.keep = lambda s: True
+        self.nan_attitude = False
 
     def statuses(self) -> list[Any]:
         return [m for m in self.sent if m.get_type() == "TCM_OBJECT_STATUS"]
 
     def texts(self) -> list[str]:
         return [m.text for m in self.sent if m.get_type() == "STATUSTEXT"]
+
+    def health_checks(self) -> list[HealthChecked]:
+        return [o for o in self.outputs if isinstance(o, HealthChecked)]
 
 
 def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
@@ -114,13 +153,16 @@ def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
         & (d.TCM_HEALTH_ATTITUDE_STALE | d.TCM_HEALTH_CAMERA_LOST)
         == 0
     )
+    # The health check ran once a second, on its own deadlines.
+    assert 4 <= len(drv.health_checks()) <= 6
+    assert "fps" in drv.health_checks()[-1].status_line
 
 
 def test_a_frame_ahead_of_the_attitude_waits_for_the_next_sample(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 10)
     comp = drv.companion
-    newest = comp.cameras[0].pipeline.telemetry.latest_attitude_time_us()
+    newest = comp.telemetry.latest_attitude_time_us()
     assert newest is not None
     cfg = comp.config
     # Within the allowed lead: at once (interpolated or briefly extrapolated).
@@ -128,13 +170,55 @@ def test_a_frame_ahead_of_the_attitude_waits_for_the_next_sample(flight: Any) ->
     # Beyond it: wait, but never longer than attitude_wait_max_us after capture.
     t = int(newest) + cfg.attitude_lead_max_us + 5_000
     assert comp.frame_deadline_us(0, t) == t + cfg.attitude_wait_max_us
-    # The sample after the frame arrives: go.
-    tel = comp.cameras[0].pipeline.telemetry
-    after = AttitudeSample.from_euler(
-        int(t - tel.clock.offset_us) + 1_000, t + 3_000, 0.0, 0.0, 0.0
-    )
-    comp.handle_events([TelemetryReceived(after)], t + 3_000)
+    # Through the slot: delivered, the frame is not processed before its deadline ...
+    comp.on_frame(0, drv.frames[10], t, t + 1_000)
+    assert comp.next_deadline_us() <= t + cfg.attitude_wait_max_us
+    n = comp.stats.frames_processed
+    outs = comp.process_due(t + 2_000)
+    assert not [o for o in outs if isinstance(o, FrameProcessed)]
+    # ... the sample after it arrives: it is ready now, and goes.
+    after = AttitudeSample.from_euler(int(t - comp.clock.offset_us) + 1_000, t + 3_000, 0, 0, 0)
+    comp.on_events([TelemetryReceived(after)], t + 3_000)
     assert comp.frame_deadline_us(0, t) is None
+    assert comp.next_deadline_us() <= t + 3_000
+    outs = comp.process_due(t + 3_000)
+    done = [o for o in outs if isinstance(o, FrameProcessed)]
+    assert len(done) == 1 and done[0].waited and comp.stats.frames_processed == n + 1
+    assert comp.stats.frames_waited == 1
+
+
+def test_a_waiting_frame_goes_at_its_deadline_without_the_sample(flight: Any) -> None:
+    drv = Driver(*flight)
+    drv.run(0, 10)
+    comp = drv.companion
+    newest = int(comp.telemetry.latest_attitude_time_us() or 0)
+    t = newest + comp.config.attitude_lead_max_us + 5_000
+    comp.on_frame(0, drv.frames[10], t, t + 1_000)
+    deadline = t + comp.config.attitude_wait_max_us
+    assert not [o for o in comp.process_due(deadline - 1) if isinstance(o, FrameProcessed)]
+    assert comp.next_deadline_us() == deadline
+    assert [o for o in comp.process_due(deadline) if isinstance(o, FrameProcessed)]
+
+
+def test_a_newer_frame_replaces_an_unprocessed_one_and_the_old_one_is_dropped(
+    flight: Any,
+) -> None:
+    drv = Driver(*flight)
+    drv.run(0, 20)
+    comp = drv.companion
+    t1, t2 = (int(flight[0].frame_times_us[i]) for i in (20, 21))
+    drv.advance(t2 + 1_000)
+    comp.on_frame(0, drv.frames[20], t1, t2 + 1_000)
+    comp.on_frame(0, drv.frames[21], t2, t2 + 1_000)  # before the first was processed
+    assert comp.stats.frames_dropped == 1
+    n = len(drv.outputs)
+    drv.advance(t2 + 41_000)
+    done = [o for o in drv.outputs[n:] if isinstance(o, FrameProcessed)]
+    assert len(done) == 1 and done[0].capture_mono_us == t2  # only the newest
+    assert comp.health_flags(t2 + 41_000) & d.TCM_HEALTH_OVERLOADED
+    # At stop, a frame still in its slot is dropped too.
+    comp.on_frame(0, drv.frames[22], t2 + 40_000, t2 + 41_000)
+    assert comp.discard_pending(t2 + 41_000) == 1 and comp.stats.frames_dropped == 2
 
 
 def test_stale_attitude_makes_objects_unknown_and_is_reported(flight: Any) -> None:
@@ -149,12 +233,22 @@ def test_stale_attitude_makes_objects_unknown_and_is_reported(flight: Any) -> No
     assert comp.health_flags(t) & d.TCM_HEALTH_ATTITUDE_STALE
     last = drv.statuses()[-5:]
     assert last and all(m.state == d.TCM_OBJECT_STATE_UNKNOWN for m in last)
-    comp.tick(t)  # the once-a-second health check
-    drv.endpoint.poll(t + 1_000_000)
-    drv.sent += decode(drv.endpoint.data_to_send())
-    assert "TCM: attitude stale" in drv.texts()
+    # The next once-a-second health check says so (the attitude still silent).
+    drv.keep = lambda s: isinstance(s, PositionSample)
+
+    def said() -> bool:
+        return any(("attitude", "attitude stale") in h.changes for h in drv.health_checks())
+
+    until = t
+    while not said() and until < t + 1_000_000:
+        until += 40_000
+        drv.advance(until)
+    drv.advance(until + 300_000)  # the STATUSTEXT queue sends one text per 250 ms
+    assert said() and "TCM: attitude stale" in drv.texts()
     # It comes back: objects are decided again once the attitude is healthy.
-    drv.run(85, 125)
+    first = int(np.searchsorted(flight[0].frame_times_us, drv.now, side="right"))
+    assert first <= 100
+    drv.run(first, 125)
     assert drv.statuses()[-1].state == d.TCM_OBJECT_STATE_STATIONARY
 
 
@@ -174,64 +268,70 @@ def test_a_pipeline_exception_costs_one_frame_and_repeated_ones_rebuild(
 ) -> None:
     drv = Driver(*flight, DaemonConfig(rebuild_after_errors=3))
     drv.run(0, 30)
-    pipe = drv.companion.cameras[0].pipeline
-    real_step = pipe.step
-    calls = {"n": 0}
+    comp = drv.companion
+    pipe = comp.pipeline(0)
+    real_step = Pipeline.step
+    failing = {"on": False}
 
-    def failing(*a: Any, **k: Any) -> Any:
-        calls["n"] += 1
-        raise RuntimeError("boom")
+    def step(self: Pipeline, *a: Any, **k: Any) -> Any:
+        if failing["on"]:
+            raise RuntimeError("boom")
+        return real_step(self, *a, **k)
 
-    monkeypatch.setattr(pipe, "step", failing)
+    monkeypatch.setattr(Pipeline, "step", step)
+    failing["on"] = True
     drv.run(30, 31)
-    assert drv.results[-1] is None and drv.companion.stats.frames_failed == 1
+    assert drv.results[-1] is None and comp.stats.frames_failed == 1
     assert any("pipeline error RuntimeError" in text for text in drv.texts())
-    monkeypatch.setattr(pipe, "step", real_step)
+    failing["on"] = False
     drv.run(31, 32)
     assert drv.results[-1] is not None  # one bad frame, then business as usual
-    monkeypatch.setattr(pipe, "step", failing)
+    failing["on"] = True
     drv.run(32, 35)
-    assert drv.companion.stats.pipeline_rebuilds == 1
-    assert drv.companion.cameras[0].pipeline is not pipe  # a fresh pipeline ...
+    assert comp.stats.pipeline_rebuilds == 1
+    assert comp.pipeline(0) is not pipe  # a fresh pipeline ...
+    failing["on"] = False
     drv.run(35, 40)
     assert all(r is not None for r in drv.results[-5:])  # ... that works
-    assert drv.companion.stats.frames_processed == 30 + 1 + 5
+    assert comp.stats.frames_processed == 30 + 1 + 5
 
 
 def test_a_stale_camera_tells_the_autopilot_its_objects_are_unknown(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 60)
     comp = drv.companion
-    assert comp.cameras[0].last_objects
+    assert comp.last_objects(0)
     t = int(flight[0].frame_times_us[59])
     n = len(drv.statuses())
-    changes = comp.tick(t + 800_000)  # no frame for 0.8 s
+    drv.advance(t + 1_600_000)  # no frame for 1.6 s: at least one health check after 0.5 s
+    changes = [c for h in drv.health_checks() for c in h.changes]
     assert ("camera0", "camera0 stale") in changes
-    drv.sent += decode(drv.endpoint.data_to_send())
     new = drv.statuses()[n:]
+    # Said once (not every check), and as unknown.
+    assert len(new) == len(comp.last_objects(0)) or len(new) >= 1
     assert new and all(m.state == d.TCM_OBJECT_STATE_UNKNOWN for m in new)
     assert comp.health_report(t + 800_000).health_flags & d.TCM_HEALTH_CAMERA_LOST
-    # Said once, not every tick.
-    comp.tick(t + 1_800_000)
-    assert len(decode(drv.endpoint.data_to_send())) == 0 or not [
-        m for m in decode(drv.endpoint.data_to_send()) if m.get_type() == "TCM_OBJECT_STATUS"
-    ]
+    m = len(drv.statuses())
+    drv.advance(t + 3_000_000)
+    assert len(drv.statuses()) == m
 
 
 def test_a_parameter_change_rebuilds_the_pipeline_and_keeps_the_telemetry(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 40)
     comp = drv.companion
-    old = comp.cameras[0].pipeline
-    drv.endpoint.params.set("TCM_THRESH", 0.2)
-    comp.handle_events([ParamChanged("TCM_THRESH", 0.2)], 0)
-    new = comp.cameras[0].pipeline
+    old = comp.pipeline(0)
+    mav = d.MAVLink(None)
+    param_set = mav.param_set_encode(1, 191, b"TCM_THRESH", 0.2, d.MAV_PARAM_TYPE_REAL32)
+    outs = comp.receive_data(gcs_bytes(param_set), drv.now)
+    assert [o for o in outs if isinstance(o, ParamsChanged) and o.name == "TCM_THRESH"]
+    new = comp.pipeline(0)
     assert new is not old and new.config.classifier.tcm_threshold == pytest.approx(0.2)
     assert new.telemetry is old.telemetry
     # An output switch does not touch the pipeline.
-    drv.endpoint.params.set("TCM_OUT_OBST", 1)
-    comp.handle_events([ParamChanged("TCM_OUT_OBST", 1)], 0)
-    assert comp.cameras[0].pipeline is new
+    out_obst = mav.param_set_encode(1, 191, b"TCM_OUT_OBST", 1, d.MAV_PARAM_TYPE_REAL32)
+    assert comp.receive_data(gcs_bytes(out_obst), drv.now)
+    assert comp.pipeline(0) is new
     drv.run(40, 100)
     assert any(m.state == d.TCM_OBJECT_STATE_STATIONARY for m in drv.statuses()[-10:])
 
@@ -268,12 +368,44 @@ def test_nothing_is_sent_before_the_autopilot_clock_is_known(flight: Any) -> Non
     assert st and all(m.time_boot_ms > 0 for m in st)
 
 
+def test_the_flight_log_falling_behind_is_reported_at_the_health_check(flight: Any) -> None:
+    drv = Driver(*flight)
+    drv.run(0, 5)
+    comp = drv.companion
+    t = comp.next_deadline_us()
+    while not comp.health_due(t):
+        drv.turn(t)
+        t = max(t + 1, comp.next_deadline_us())
+    comp.set_log_state(d.TCM_LOG_STATE_FAULT, 3, 4)
+    drv.turn(t)
+    drv.advance(t + 300_000)
+    assert "TCM: log behind, 3 frames, 4 msgs lost" in drv.texts()
+    assert drv.health_checks()[-1].report.health_flags & d.TCM_HEALTH_LOG_FAULT
+
+
+def test_replay_frame_forces_the_clock_offset_and_the_override(flight: Any) -> None:
+    drv = Driver(*flight)
+    drv.run(0, 30)
+    comp = drv.companion
+    t = int(flight[0].frame_times_us[30])
+    offset = comp.clock_offset_us()
+    result = comp.replay_frame(
+        0, drv.frames[30], t, t + 3_000, clock_offset_us=offset, override="attitude stale"
+    )
+    assert result is not None and result.objects
+    assert all(o.state == "unknown" and o.reason == "attitude stale" for o in result.objects)
+    assert comp.clock_offset_us() == offset  # forced only for that frame
+    assert comp.data_to_send() == b"" or not [
+        m for m in decode(comp.data_to_send()) if m.get_type() == "TCM_OBJECT_STATUS"
+    ]
+
+
 def test_attitude_time_mapping_uses_timesync_and_removes_the_link_latency() -> None:
     """Telemetry arriving 3 ms after it was stamped biases the envelope fit by 3 ms;
     with a fresh, agreeing TIMESYNC offset the pipeline's clock has no bias."""
     from tcm_companion.service.companion import TimesyncClock
 
-    offset = 5_000_000_000  # companion - autopilot boot (µs)
+    offset = 5_000_000_000  # companion monotonic - autopilot boot (µs)
     latency = 3_000
     endpoint = CompanionEndpoint(now_us=offset)
     clock = TimesyncClock(endpoint)
@@ -289,6 +421,11 @@ def test_attitude_time_mapping_uses_timesync_and_removes_the_link_latency() -> N
     clock.observe(5_000_000, 5_000_000 + offset + latency)
     assert clock.offset_us == pytest.approx(offset, abs=1)
     assert clock.used_timesync
+    # Replay forces what the live pipeline used, for one frame.
+    clock.force(123.0)
+    assert clock.offset_us == 123.0
+    clock.force(None)
+    assert clock.offset_us == pytest.approx(offset, abs=1)
     # A TIMESYNC offset that disagrees with the telemetry (a reboot seen by one side
     # first) is not used.
     for k in range(5):

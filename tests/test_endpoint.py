@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import random
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
@@ -15,6 +16,7 @@ from hypothesis import strategies as st
 from tcm_companion.core.classify import Classification
 from tcm_companion.core.frames import bearing_from_azel
 from tcm_companion.core.pipeline import FrameResult, ObjectResult
+from tcm_companion.io.samples import Rejected, parse_telemetry, sample_from_message
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec, SigningConfig
 from tcm_companion.mavlink.endpoint import (
@@ -27,6 +29,10 @@ from tcm_companion.mavlink.endpoint import (
     TelemetryReceived,
     TelemetryRejected,
 )
+from tcm_companion.mavlink.params import PARAMS
+from tcm_companion.mavlink.statustext import CollisionConditions, StatustextQueue
+from tcm_companion.mavlink.streams import StreamRequests
+from tcm_companion.mavlink.timesync import FRESH_US
 
 T0 = 1_000_000_000  # companion clock at start, µs
 BOOT0_MS = 250_000  # autopilot boot time at start
@@ -186,7 +192,8 @@ def test_parameter_protocol() -> None:
     ep.receive_data(gcs.encode(d.MAVLink_param_request_list_message(7, 191)), T0)
     values = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"]
     assert len(values) == values[0].param_count >= 10
-    assert {v.param_id for v in values} >= {"TCM_THRESH", "TCM_INTERVAL", "TCM_EGO_SRC"}
+    assert [v.param_id for v in values] == [p.name for p in PARAMS]
+    assert {v.param_id for v in values} >= {"TCM_THRESH", "TCM_EGO_SRC", "TCM_TTC_ALARM"}
     ev = ep.receive_data(
         gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_THRESH", 0.12, 9)), T0 + 1
     )
@@ -195,16 +202,16 @@ def test_parameter_protocol() -> None:
     assert echo.param_id == "TCM_THRESH" and echo.param_value == pytest.approx(0.12)
     # Out of range: refused, the current value is sent back, a warning goes out.
     ev = ep.receive_data(
-        gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_INTERVAL", 400, 9)), T0 + 2
+        gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_EGO_SRC", 400, 9)), T0 + 2
     )
     assert ev == [] and ep.stats["parameter refused"] == 1
     (echo,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"]
-    assert echo.param_value == 25
+    assert echo.param_id == "TCM_EGO_SRC" and echo.param_value == 2
     ep.receive_data(
-        gcs.encode(d.MAVLink_param_request_read_message(7, 191, b"TCM_HOLD", -1)), T0 + 3
+        gcs.encode(d.MAVLink_param_request_read_message(7, 191, b"TCM_TTC_ALARM", -1)), T0 + 3
     )
     (read,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"]
-    assert read.param_id == "TCM_HOLD" and read.param_value == 12
+    assert read.param_id == "TCM_TTC_ALARM" and read.param_value == 3.0
     # Not for us: ignored.
     ep.receive_data(gcs.encode(d.MAVLink_param_request_list_message(7, 1)), T0 + 4)
     assert [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "PARAM_VALUE"] == []
@@ -390,9 +397,11 @@ def test_fuzz_receive_path_never_raises_and_keeps_working(junk: list[bytes], see
             chunk = bytes(f) + chunk
         ep.receive_data(chunk, T0 + 1000)
         ep.poll(T0 + 1000)
-    # After the garbage, clean frames still decode (the buffer resynchronised).
+    # After the garbage, clean frames still decode (the buffer resynchronised). Garbage
+    # may end in a plausible header whose "frame" (at most 280 bytes) swallows the next
+    # bytes until it fails its CRC, so send more than that: 12 frames of 28 bytes.
     ev = ep.receive_data(
-        b"".join(ap.attitude(BOOT0_MS + 10_000 + 20 * k) for k in range(3)), T0 + 2000
+        b"".join(ap.attitude(BOOT0_MS + 10_000 + 20 * k) for k in range(12)), T0 + 2000
     )
     assert sum(isinstance(e, TelemetryReceived) for e in ev) >= 2
 
@@ -503,3 +512,103 @@ def test_float_parameters_keep_their_decimal_value() -> None:
         gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_THRESH", 0.12, 9)), T0
     )
     assert ev[0].value == 0.12  # not 0.11999999731779099
+
+
+# -- the endpoint's pieces and single sources -------------------------------------------------
+def test_telemetry_is_judged_by_the_rule_replay_uses() -> None:
+    """The endpoint's TelemetryReceived / TelemetryRejected and the replay readers'
+    sample_from_message come from one function: they accept the same messages."""
+    ep, ap = connected()
+    quat = d.MAVLink_attitude_quaternion_message
+    cases = [
+        d.MAVLink_attitude_message(BOOT0_MS, 0.2, -0.1, 3.0, 0, 0, 0),
+        d.MAVLink_attitude_message(BOOT0_MS + 1, 50.0, 0.0, 0.0, 0, 0, 0),  # not an angle
+        d.MAVLink_attitude_message(BOOT0_MS + 2, math.nan, 0.0, 0.0, 0, 0, 0),
+        quat(BOOT0_MS + 3, 1.0, 0.0, 0.0, 0.0, 0, 0, 0, [0.0] * 4),
+        quat(BOOT0_MS + 4, 0.5, 0.0, 0.0, 0.0, 0, 0, 0, [0.0] * 4),  # not unit
+        d.MAVLink_local_position_ned_message(BOOT0_MS + 5, 1.0, 2.0, -3.0, 0, 0, 0),
+        d.MAVLink_local_position_ned_message(BOOT0_MS + 6, 1.0, math.inf, -3.0, 0, 0, 0),
+    ]
+    accepted = []
+    for k, msg in enumerate(cases):
+        frame = ap.codec.encode(msg)
+        (ev,) = ep.receive_data(frame, T0 + k)
+        (decoded,) = MavlinkCodec(1, 2).feed(frame)
+        parsed = parse_telemetry(decoded, T0 + k)
+        if isinstance(parsed, Rejected):
+            assert ev == TelemetryRejected(parsed.kind, parsed.reason)
+            assert sample_from_message(decoded, T0 + k) is None
+        else:
+            assert isinstance(ev, TelemetryReceived) and parsed is not None
+            assert ev.sample.time_boot_us == parsed.time_boot_us
+            accepted.append(k)
+    assert accepted == [0, 3, 5]
+    assert ep.stats["bad attitude"] == 3 and ep.stats["bad position"] == 1
+
+
+def test_timesync_freshness_is_one_rule() -> None:
+    """The health flag, the time base and boot_ms all switch at FRESH_US after the last
+    TIMESYNC reply, together."""
+    ep, _ = connected()
+    ep.timesync.add_reply(T0, int((T0 - 100_000_000) * 1000), T0 + 1000)  # offset 100 s
+    t_reply = T0 + 1000
+
+    def health_flags(now: int) -> int:
+        ep.send_health_now(now)
+        (h,) = [m for m in Autopilot().receive(ep.data_to_send()) if m.get_srcComponent() == 191]
+        return int(h.health)
+
+    before, after = t_reply + FRESH_US - 1, t_reply + FRESH_US
+    assert ep.timesync.fresh(before) and not ep.timesync.fresh(after)
+    assert ep.has_time_base(before) and ep.boot_ms(before, before) > 0
+    assert not health_flags(before) & d.TCM_HEALTH_TIMESYNC_LOST
+    assert not ep.has_time_base(after) and ep.boot_ms(after, after) == 0  # no telemetry fit
+    assert health_flags(after) & d.TCM_HEALTH_TIMESYNC_LOST
+
+
+def test_stream_requests_on_their_own() -> None:
+    stats: Counter[str] = Counter()
+    att, pos = d.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, d.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+    req = StreamRequests([(att, 50.0), (pos, 10.0)], 1_000_000, 3_000_000, stats, T0)
+    first = req.poll(T0, (7, 1))
+    assert (first.param1, first.target_system) == (att, 7)
+    assert req.poll(T0 + 10, (7, 1)) is None  # one at a time
+    req.on_ack(d.MAV_RESULT_DENIED, T0 + 20)  # no quaternions here: Euler instead
+    assert req.poll(T0 + 20, (7, 1)).param1 == d.MAVLINK_MSG_ID_ATTITUDE
+    req.on_ack(d.MAV_RESULT_ACCEPTED, T0 + 30)
+    assert req.poll(T0 + 30, (7, 1)).param1 == pos
+    req.on_ack(d.MAV_RESULT_ACCEPTED, T0 + 40)
+    assert req.poll(T0 + 40, (7, 1)) is None  # all acknowledged
+    for _ in range(200):  # attitude arrives at 50 Hz, position never
+        req.received(d.MAVLINK_MSG_ID_ATTITUDE)
+    assert req.poll(T0 + 4_000_000, (7, 1)) is None  # rates checked ...
+    assert stats["streams re-requested"] == 1  # ... position asked for again
+    assert req.poll(T0 + 5_000_000, (7, 1)).param1 == pos
+
+
+def test_statustext_condition_table_stays_bounded() -> None:
+    ep, _ = connected()
+    t = T0
+    for k in range(5000):  # a new condition every 10 ms, drained as fast as allowed
+        t += 10_000
+        ep.statustext(d.MAV_SEVERITY_INFO, f"condition {k}", t)
+        ep.poll(t)
+        assert ep.statustexts.conditions <= 256
+    assert ep.stats["statustext dropped"] > 0  # the queue is bounded too
+    q = StatustextQueue(0, 10_000_000, 100, Counter(), T0, max_conditions=8)
+    for k in range(50):  # within the repeat time: the oldest conditions give way
+        assert q.queue(d.MAV_SEVERITY_INFO, f"c{k}", T0 + k)
+        q.poll(T0 + k)
+        assert q.conditions <= 8
+    assert not q.queue(d.MAV_SEVERITY_INFO, "c49", T0 + 60)  # a recent one still counts
+
+
+def test_collision_conditions_on_their_own() -> None:
+    cc = CollisionConditions(clear_us=2_000_000)
+    alarm = obj(1, "moving", 0.0, collision=True, ttc=1.0)
+    far = obj(2, "moving", 0.0, collision=True, ttc=9.0)
+    assert cc.update([alarm, far], 3.0, T0) == [alarm]
+    assert cc.update([alarm], 3.0, T0 + 1_000_000) == []  # the same condition
+    assert cc.update([], 3.0, T0 + 3_500_000) == []  # cleared
+    assert cc.update([alarm], 3.0, T0 + 3_600_000) == [alarm]  # a new one
+    assert cc.update([alarm], 0.0, T0 + 3_700_000) == []  # alarms off

@@ -9,6 +9,7 @@ import itertools
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -29,6 +30,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from tcm_companion.io import flightlog as fl
+from tcm_companion.io import flightlog_read, topics
 from tcm_companion.io.flightlog import (
     FlightLogWriter,
     LoggingConfig,
@@ -72,6 +74,22 @@ def seeking_messages(path: Path) -> int:
             return sum(1 for _ in make_reader(f).iter_messages())
     except Exception:
         return -1
+
+
+def writer_with_events(
+    directory: Path, **kwargs: Any
+) -> tuple[FlightLogWriter, list[tuple[str, str]]]:
+    """A started writer flushing every 50 ms, and the list its events go to."""
+    events: list[tuple[str, str]] = []
+    w = FlightLogWriter(
+        LoggingConfig(flush_interval_s=0.05),
+        directory,
+        wall_minus_mono_ns=WALL,
+        on_event=lambda sev, text: events.append((sev, text)),
+        **kwargs,
+    )
+    w.start({})
+    return w, events
 
 
 def frames_account(s: fl.FlightLogStats, calls: int) -> None:
@@ -127,6 +145,52 @@ def test_defaults_and_state_codes_match_the_dialect(tmp_path: Path) -> None:
     assert (s.frames_dropped_queue, s.messages_dropped_queue) == (1, 1)
     assert not (tmp_path / "off").exists()
     FlightLogWriter(LoggingConfig(), tmp_path / "never").stop()  # stop without start
+
+
+# ---------------------------------------------------------------------------------------
+# The topic table, the counts, the reader on its own
+
+
+def test_the_topic_table_is_the_one_the_docs_list() -> None:
+    """io/topics.py and the table of docs/logging.md name the same topics and encodings."""
+    doc = (REPO / "docs" / "logging.md").read_text(encoding="utf-8")
+    rows = [ln for ln in doc.splitlines() if ln.startswith("| `/")]
+    documented: dict[str, str] = {}
+    for row in rows:
+        names, encoding = row.split("|")[1:3]
+        for name in re.findall(r"`(/[^`]+)`", names):
+            documented[name] = encoding.strip()
+    table = {t.name.replace("{camera}", "{N}"): t for t in topics.TOPICS}
+    assert set(documented) == set(table)
+    for name, t in table.items():
+        assert documented[name] == t.encoding, (name, documented[name])
+    assert topics.camera_image(3) == "/camera3/image"
+    assert topics.camera_of("/camera12/image") == 12
+    assert topics.camera_of("/camera1/annotations", topics.CAMERA_ANNOTATIONS) == 1
+    assert topics.camera_of("/tcm/result") is None
+    assert topics.spec("/camera7/annotations").schema == topics.ANNOTATIONS_SCHEMA
+    assert fl.MAVLINK_TOPICS == {"in": topics.MAVLINK_IN, "out": topics.MAVLINK_OUT}
+
+
+def test_one_counts_object_and_its_snapshots(tmp_path: Path) -> None:
+    w = FlightLogWriter(LoggingConfig(), tmp_path, wall_minus_mono_ns=WALL)
+    before = w.stats
+    assert not w.log_frame(0, T0, noise_image(0))  # not started: dropped, counted
+    assert not w.log_json(topics.RESULT, T0, {})
+    s = w.stats
+    assert (s.frames_dropped_queue, s.messages_dropped_queue) == (1, 1)
+    assert (s.frames_queued, s.messages_queued, s.state) == (0, 0, "off")
+    assert before.frames_dropped_queue == 0  # a snapshot does not move
+    s.frames_dropped_queue = 99  # nor does changing one touch the writer's counts
+    s.files.append(tmp_path)
+    assert w.stats.frames_dropped_queue == 1 and w.stats.files == []
+
+
+def test_the_reader_module_is_the_flightlog_readers(tmp_path: Path) -> None:
+    assert fl.read_log is flightlog_read.read_log and fl.LogRecord is flightlog_read.LogRecord
+    assert flightlog_read.part_name("20260101-000000", 7) == "tcm-20260101-000000-007.mcap"
+    with pytest.raises(FileNotFoundError):
+        flightlog_read.log_files(tmp_path / "none")
 
 
 # ---------------------------------------------------------------------------------------
@@ -525,16 +589,9 @@ def test_rotation_by_time(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
 
 def test_free_space_floor_pauses_frames_only(tmp_path: Path) -> None:
     free = {"bytes": 10_000_000_000}
-    events: list[tuple[str, str]] = []
-    w = FlightLogWriter(
-        LoggingConfig(flush_interval_s=0.05),
-        tmp_path,
-        wall_minus_mono_ns=WALL,
-        free_bytes=lambda p: free["bytes"],
-        on_event=lambda sev, text: events.append((sev, text)),
-        free_check_interval_s=0.01,
+    w, events = writer_with_events(
+        tmp_path, free_bytes=lambda p: free["bytes"], free_check_interval_s=0.01
     )
-    w.start({})
     img = noise_image(3)
     t = T0
 
@@ -594,15 +651,7 @@ def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.Mo
         "_open_stream",
         lambda self, path: FailingFile(real_open(self, path), broken),
     )
-    events: list[tuple[str, str]] = []
-    w = FlightLogWriter(
-        LoggingConfig(flush_interval_s=0.05),
-        tmp_path,
-        wall_minus_mono_ns=WALL,
-        on_event=lambda sev, text: events.append((sev, text)),
-        retry_interval_s=0.1,
-    )
-    w.start({})
+    w, events = writer_with_events(tmp_path, retry_interval_s=0.1)
     img = noise_image(4)
     calls = 0
 
@@ -641,16 +690,7 @@ def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.Mo
 
 def test_directory_removed_faults_then_recovers(tmp_path: Path) -> None:
     logdir = tmp_path / "logs"
-    events: list[tuple[str, str]] = []
-    w = FlightLogWriter(
-        LoggingConfig(flush_interval_s=0.05),
-        logdir,
-        wall_minus_mono_ns=WALL,
-        on_event=lambda sev, text: events.append((sev, text)),
-        free_check_interval_s=0.02,
-        retry_interval_s=0.1,
-    )
-    w.start({})
+    w, events = writer_with_events(logdir, free_check_interval_s=0.02, retry_interval_s=0.1)
     img = noise_image(5)
     t = T0
 

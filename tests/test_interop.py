@@ -91,44 +91,50 @@ CI = bool(os.environ.get("CI"))
 
 
 # -- what we send ---------------------------------------------------------------------------
+def _object(
+    track_id: int,
+    az_el_deg: tuple[float, float],
+    angular_radius_rad: float,
+    centroid_px: tuple[float, float],
+    classification: Classification,
+    ttc_s: float,
+    miss_radii: float,
+) -> ObjectResult:
+    """A detected object seen along ``az_el_deg`` (body = camera = NED here)."""
+    b = bearing_from_azel(np.radians(np.array(az_el_deg[0])), np.radians(np.array(az_el_deg[1])))
+    return ObjectResult(
+        track_id=track_id,
+        detected=True,
+        state=classification.state,
+        reason="",
+        bearing_cam=b,
+        bearing_body=b,
+        bearing_ned=b,
+        azimuth_ned_rad=0.0,
+        elevation_ned_rad=0.0,
+        angular_radius_rad=angular_radius_rad,
+        centroid_px=centroid_px,
+        classification=classification,
+        ttc_s=ttc_s,
+        collision_course=math.isfinite(ttc_s),
+        miss_radii=miss_radii,
+    )
+
+
 def _frame(t_us: int) -> FrameResult:
     """Two objects that exercise most fields: a mover on a collision course (range from the
     configured object radius) and a stationary object with a range and no TTC (NaN)."""
-    b1 = bearing_from_azel(np.radians(np.array(5.0)), np.radians(np.array(-3.0)))
-    mover = ObjectResult(
-        track_id=7,
-        detected=True,
-        state="moving",
-        reason="",
-        bearing_cam=b1,
-        bearing_body=b1,
-        bearing_ned=b1,
-        azimuth_ned_rad=0.0,
-        elevation_ned_rad=0.0,
-        angular_radius_rad=0.087,
-        centroid_px=(320.0, 240.0),
-        classification=Classification("moving", "", disparity=0.4),
-        ttc_s=2.5,
-        collision_course=True,
-        miss_radii=0.5,
+    mover = _object(
+        7, (5.0, -3.0), 0.087, (320.0, 240.0), Classification("moving", "", disparity=0.4), 2.5, 0.5
     )
-    b2 = bearing_from_azel(np.radians(np.array(-20.0)), np.radians(np.array(10.0)))
-    still = ObjectResult(
-        track_id=12,
-        detected=True,
-        state="stationary",
-        reason="",
-        bearing_cam=b2,
-        bearing_body=b2,
-        bearing_ned=b2,
-        azimuth_ned_rad=0.0,
-        elevation_ned_rad=0.0,
-        angular_radius_rad=0.05,
-        centroid_px=(100.0, 80.0),
-        classification=Classification("stationary", "", disparity=0.02, range_m=8.25),
-        ttc_s=math.nan,
-        collision_course=False,
-        miss_radii=math.nan,
+    still = _object(
+        12,
+        (-20.0, 10.0),
+        0.05,
+        (100.0, 80.0),
+        Classification("stationary", "", disparity=0.02, range_m=8.25),
+        math.nan,
+        math.nan,
     )
     return FrameResult(0, t_us, (mover, still), True, None, {})
 

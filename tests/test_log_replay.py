@@ -44,9 +44,10 @@ from tcm_companion.service.sitl import run_sitl
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Real-time SITL runs: one at a time (one xdist group), so that two of them never share
-# the two cores of a CI machine and their timing stays what they test.
-pytestmark = pytest.mark.xdist_group("sitl")
+# Real-time SITL runs (the kill -9 and the log that cannot keep up: the writer thread's
+# pace against the daemon's is their point): one at a time (one xdist group), so that
+# two of them never share the two cores of a CI machine. The rest runs in virtual time.
+REAL_TIME = pytest.mark.xdist_group("sitl")
 LOGS = ROOT / "tests" / "data" / "logs"
 REFERENCES = sorted(LOGS.glob("*.mcap"))
 # Float results that another numeric environment (BLAS kernel, SIMD loops, numpy/OpenCV/
@@ -65,6 +66,7 @@ def test_a_sitl_log_replays_to_exactly_the_logged_results(tmp_path: Path) -> Non
             duration_s=4.0,
             state_dir=str(tmp_path / "state"),
             log_dir=str(tmp_path / "log"),
+            clock="virtual",
         )
     )
     assert report.ok, report.lines()
@@ -216,6 +218,7 @@ def test_logged_results_carry_what_replay_and_plots_need(tmp_path: Path) -> None
             duration_s=3.0,
             state_dir=str(tmp_path / "state"),
             log_dir=str(tmp_path / "log"),
+            clock="virtual",
         )
     )
     topics = {r.topic for r in read_log(tmp_path / "log")}
@@ -230,6 +233,7 @@ def _frames_logged(log_dir: Path) -> int:
     return sum(1 for r in read_log(log_dir, {"/camera0/image"}))
 
 
+@REAL_TIME
 def test_kill_9_loses_at_most_about_a_second(tmp_path: Path) -> None:
     log_dir = tmp_path / "log"
     env = {**os.environ, "TCM_COMPANION__DAEMON__STATE_DIR": str(tmp_path / "state")}
@@ -260,6 +264,7 @@ def test_kill_9_loses_at_most_about_a_second(tmp_path: Path) -> None:
     assert _frames_logged(log_dir) > 10
 
 
+@REAL_TIME
 def test_a_log_that_cannot_keep_up_drops_frames_counts_them_and_says_so(tmp_path: Path) -> None:
     config = lossless(AppConfig())
     config = replace(config, logging=replace(config.logging, queue_items=1))

@@ -729,30 +729,31 @@ def test_mock_autopilot_does_not_brake_without_applet_action(action, kw):
     assert speed == pytest.approx(1.5, abs=0.1)
 
 
-@pytest.mark.xdist_group("sitl")  # real-time SITL: one at a time (see tests/test_daemon.py)
 def test_closed_loop_sitl_the_daemon_drives_the_applet_to_brake(tmp_path: Path) -> None:
-    """The real daemon's output, over loopback UDP, into the applet inside the mock: a
-    ball on a collision course makes the applet switch to BRAKE and the vehicle stop."""
+    """The real companion's output into the applet inside the mock, in virtual time (one
+    simulated clock: deterministic, whatever the machine's load): a ball on a collision
+    course makes the applet switch to BRAKE and the vehicle stop."""
     pytest.importorskip("lupa")
     import asyncio
-    import time
     from dataclasses import replace
 
     from tcm_companion.config import AppConfig
     from tcm_companion.service.sitl import run_sitl
+    from tcm_companion.service.sitl_virtual import (
+        VIRTUAL_START_MONO_US,
+        VIRTUAL_UNIX_US_AT_START,
+    )
     from tcm_companion.sim.lua_applet import LuaAppletAutopilot
     from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
 
     mcfg = MockAutopilotConfig(
-        scenario="COLLISION", brake_on_collision=False, unix_us_at_start=1_718_000_000_000_000
+        scenario="COLLISION", brake_on_collision=False, unix_us_at_start=VIRTUAL_UNIX_US_AT_START
     )
-    mock = LuaAppletAutopilot(
-        MockAutopilot(mcfg, time.monotonic_ns() // 1000), params={"TCMA_ACTION": 2}
-    )
+    mock = LuaAppletAutopilot(MockAutopilot(mcfg, VIRTUAL_START_MONO_US), params={"TCMA_ACTION": 2})
     config = AppConfig()
     config = replace(config, sim=replace(config.sim, scenario="COLLISION"))
     report = asyncio.run(
-        run_sitl(config, duration_s=10.0, state_dir=str(tmp_path), mock=mock)  # type: ignore[arg-type]
+        run_sitl(config, duration_s=10.0, state_dir=str(tmp_path), mock=mock, clock="virtual")  # type: ignore[arg-type]
     )
     texts = [t for _, _, t in mock.texts]
     assert any("-> BRAKE" in t for t in texts), texts

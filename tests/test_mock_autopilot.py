@@ -3,8 +3,8 @@
 A :class:`Companion` is a bare :class:`MavlinkCodec` (system 1, component 191) wired to
 the sans-IO mock: what it sends goes straight into ``receive_data``; time only moves
 when the test says so (``advance``), jumping from one ``next_deadline_us`` to the next.
-The runner tests use a two-queue fake transport (and the real memory pair when the
-transports package is there); they run on the event loop for a few milliseconds.
+The runner tests use a two-queue fake transport and the real memory pair; they run on
+the event loop for a few milliseconds.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega
 
+from tcm_companion.io.transports import memory_pair
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
 from tcm_companion.sim.mock_autopilot import (
@@ -40,6 +41,8 @@ from tcm_companion.sim.mock_autopilot_run import (
     config_from_args,
     run_mock_autopilot,
 )
+from tcm_companion.sim.mock_checks import check_status, collision_alarm
+from tcm_companion.sim.telemetry import TelemetryConfig, TelemetryNoise
 
 T0_US = 5_000_000_000  # the caller's clock when the mock starts (arbitrary monotonic µs)
 S = 1_000_000  # µs per second
@@ -558,6 +561,49 @@ def test_braking_path_is_continuous() -> None:
     assert path.position_ned_m(ts).shape == (50, 3)
 
 
+def test_the_checks_are_pure_functions_of_the_message_and_the_boot_clock() -> None:
+    _, c = make()
+    ok = c.status(time_boot_ms=1000, collision_course=1, ttc=1.5)
+    assert check_status(ok, 1040, 1000, 50) == ()
+    assert check_status(ok, 2500, 1000, 50) == ("stale",)
+    assert check_status(ok, 900, 1000, 50) == ("future",)
+    assert collision_alarm(ok, 3.0) and not collision_alarm(ok, 1.0)
+    health = c.health(log_state=9)
+    assert check_status(health, int(health.time_boot_ms), 1000, 50) == ("bad log_state",)
+
+
+def test_poll_returns_events_like_the_endpoint_and_the_parts_are_reachable() -> None:
+    ap, c = make()
+    events = ap.poll(T0_US + 2 * S)
+    assert events == []  # nothing the mock reports comes of time alone
+    assert ap.now_us == T0_US + 2 * S and ap.scenario_t_s() == pytest.approx(2.0)
+    ap.statustext(d.MAV_SEVERITY_INFO, "x" * 80)  # cut to 50, as ArduPilot
+    c.pump()
+    assert c.of("STATUSTEXT")[-1].text == "x" * 50
+    assert ap.codec is ap.firmware.codec and ap.system_id == ap.firmware.system_id
+    assert ap.vehicle_truth().t_s == ap.vehicle.t_s()
+
+
+def test_the_mock_uses_the_synthetic_telemetrys_noise_model() -> None:
+    for scale in (1.0, 0.5, 0.0):
+        ap, _ = make(noise=scale, seed=4)
+        cfg = ap.config.telemetry
+        noise = ap.vehicle.noise
+        assert isinstance(noise, TelemetryNoise)
+        assert noise.attitude_sigma_rad == pytest.approx(
+            math.radians(cfg.attitude_noise_deg) * scale
+        )
+        assert noise.position_sigma_m == pytest.approx(cfg.position_noise_m * scale)
+        bias = np.abs(noise.attitude_bias_rad)
+        assert np.all(bias <= math.radians(cfg.attitude_bias_max_deg) * scale + 1e-12)
+    # One model: the same draws give the same measurement, whoever asks.
+    model = TelemetryNoise.draw(TelemetryConfig(), 1.0, np.random.default_rng(1))
+    one = model.attitude(np.array([0.1, 0.2, 3.1]), np.zeros(3), np.random.default_rng(2))
+    many = model.attitude(np.array([[0.1, 0.2, 3.1]]), np.zeros((1, 3)), np.random.default_rng(2))
+    assert np.array_equal(one[0], many[0][0]) and np.array_equal(one[1], many[1][0])
+    assert abs(one[0][2]) <= math.pi  # yaw wrapped
+
+
 def test_obstacle_messages_and_proximity_health() -> None:
     ap, c = make()
     c.advance(1 * S)
@@ -880,11 +926,6 @@ def test_runner_ends_when_link_closes() -> None:
 
 
 def test_runner_over_memory_pair() -> None:
-    transports = pytest.importorskip("tcm_companion.io.transports")
-    memory_pair = getattr(transports, "memory_pair", None)
-    if memory_pair is None:
-        pytest.skip("tcm_companion.io.transports has no memory_pair yet")
-
     async def main() -> None:
         mock_end, companion_end = memory_pair()
         stop = asyncio.Event()

@@ -159,11 +159,8 @@ class MemoryLink(Link):
     @asynccontextmanager
     async def pair(self, **options: Any) -> AsyncIterator[tuple[Transport, Transport]]:
         a, b = memory_pair(**options)
-        try:
+        async with a, b:  # already open: entering only closes them at the end
             yield a, b
-        finally:
-            await a.close()
-            await b.close()
 
 
 class UdpLink(Link):
@@ -171,19 +168,13 @@ class UdpLink(Link):
 
     @asynccontextmanager
     async def pair(self, **options: Any) -> AsyncIterator[tuple[Transport, Transport]]:
-        a = open_transport("udpin:127.0.0.1:0", **options)
-        await a.open()
-        port = a.local_address[1]  # type: ignore[attr-defined]
-        b = open_transport(f"udpout:127.0.0.1:{port}", **options)
-        await b.open()
-        try:
-            # udpin answers whoever spoke last: say hello so that a knows b.
-            await b.send(b"\0")
-            assert await a.recv(timeout=5) == b"\0"
-            yield a, b
-        finally:
-            await a.close()
-            await b.close()
+        async with open_transport("udpin:127.0.0.1:0", **options) as a:
+            port = a.local_address[1]  # type: ignore[attr-defined]
+            async with open_transport(f"udpout:127.0.0.1:{port}", **options) as b:
+                # udpin answers whoever spoke last: say hello so that a knows b.
+                await b.send(b"\0")
+                assert await a.recv(timeout=5) == b"\0"
+                yield a, b
 
 
 class PtyLink(Link):

@@ -1,4 +1,4 @@
-"""The field flight log: MCAP files written off the hot path, crash-safe, rotated; and a reader.
+"""The field flight log: MCAP files written off the hot path, crash-safe, rotated.
 
 Writing
 -------
@@ -44,19 +44,21 @@ counted) and a new part is tried every ``retry_interval_s``.
 *Events.* ``on_event(severity, text)`` is called from the writer thread: it must be
 thread-safe and quick (e.g. ``loop.call_soon_threadsafe``); its exceptions are swallowed.
 
+*Counts.* Every call is counted once, in one :class:`FlightLogStats` the writer keeps
+under its lock; :attr:`FlightLogWriter.stats` is a copy of it.
+
 Topics
 ------
-``/camera{N}/image``        ``foxglove.CompressedImage`` (protobuf), frame_id ``camera{N}``
-``/camera{N}/annotations``  ``foxglove.ImageAnnotations`` (protobuf): a circle and a label
-                            per object
-``/mavlink/in``, ``/mavlink/out``  raw MAVLink bytes, encoding ``"mavlink"``, no schema
-any other (``/tcm/...``)    JSON, schema encoding ``"jsonschema"`` (permissive)
+The table of topics is :mod:`.topics`: ``/camera{N}/image`` and ``/camera{N}/annotations``
+(protobuf, Foxglove's schemas, frame_id ``camera{N}``), ``/mavlink/in`` and
+``/mavlink/out`` (raw bytes, encoding ``"mavlink"``, no schema), and the JSON documents
+``/tcm/...`` (schema encoding ``"jsonschema"``, permissive; :meth:`FlightLogWriter.log_json`
+takes any topic).
 
 Reading
 -------
-:func:`read_log` streams a file or a directory of parts in write order with the
-non-seeking reader and stops quietly at a truncated tail; :func:`read_metadata`,
-:func:`decode_image`, :func:`decode_json` decode what it yields.
+:mod:`.flightlog_read` (:func:`read_log`, :func:`read_metadata`, :func:`decode_image`,
+:func:`decode_json`, :func:`log_files`), re-exported here.
 """
 
 from __future__ import annotations
@@ -68,12 +70,11 @@ import logging
 import math
 import os
 import queue
-import re
 import shutil
 import threading
 import time
-from collections.abc import Callable, Container, Iterator, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, Literal
@@ -88,19 +89,44 @@ from foxglove_schemas_protobuf.Point2_pb2 import Point2
 from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from google.protobuf.timestamp_pb2 import Timestamp
-from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from .. import __version__
+from . import topics
+from .flightlog_read import (
+    METADATA_NAME,
+    LogRecord,
+    decode_image,
+    decode_json,
+    log_files,
+    part_name,
+    read_log,
+    read_metadata,
+)
+from .topics import ANNOTATIONS_SCHEMA, IMAGE_SCHEMA
+
+__all__ = [
+    "ANNOTATIONS_SCHEMA",
+    "IMAGE_SCHEMA",
+    "LOG_FORMAT",
+    "MAVLINK_TOPICS",
+    "METADATA_NAME",
+    "FlightLogStats",
+    "FlightLogWriter",
+    "LogRecord",
+    "LogState",
+    "LoggingConfig",
+    "decode_image",
+    "decode_json",
+    "log_files",
+    "read_log",
+    "read_metadata",
+]
 
 log = logging.getLogger(__name__)
 
-METADATA_NAME = "tcm-companion"
 LOG_FORMAT = "tcm-flightlog/1"
-IMAGE_SCHEMA = "foxglove.CompressedImage"
-ANNOTATIONS_SCHEMA = "foxglove.ImageAnnotations"
-MAVLINK_TOPICS = {"in": "/mavlink/in", "out": "/mavlink/out"}
+MAVLINK_TOPICS = topics.MAVLINK  # log_mavlink's direction -> topic
 
 # MAVLink enum TCM_LOG_STATE (tcm_companion/mavlink/tcm.xml)
 TCM_LOG_STATE_OFF = 0
@@ -116,8 +142,6 @@ _STATE_CODES: dict[str, int] = {
 }
 
 _MB = 1_000_000
-_FILE_RE = re.compile(r"^tcm-(\d{8}-\d{6})-(\d+)\.mcap$")
-_IMAGE_TOPIC_RE = re.compile(r"^/camera(\d+)/image$")
 
 
 # ---------------------------------------------------------------------------------------
@@ -176,10 +200,16 @@ def _is_num(x: object) -> bool:
 # ---------------------------------------------------------------------------------------
 # Statistics
 
+# What becomes of a logged item (the suffix of a FlightLogStats counter).
+Outcome = Literal["queued", "logged", "dropped_queue", "dropped_disk", "dropped_error"]
+_FRAME, _ANNOT, _MAV, _JSON = 0, 1, 2, 3  # the kinds of queued item
 
-@dataclass(frozen=True)
+
+@dataclass
 class FlightLogStats:
-    """A snapshot of the writer's counters.
+    """The writer's counts: the writer keeps one under its lock and counts into it;
+    :attr:`FlightLogWriter.stats` returns a copy (a snapshot) with the live values
+    (bytes, files, state, queue depth) filled in.
 
     Once stopped, every ``log_frame`` call is exactly one of ``frames_logged``,
     ``frames_dropped_queue`` (queue full, or not recording, or still queued when ``stop``
@@ -199,7 +229,6 @@ class FlightLogStats:
     files: list[Path] = field(default_factory=list)
     write_errors: int = 0
     state: LogState = "off"
-    # beyond the brief
     frames_dropped_error: int = 0
     messages_queued: int = 0
     messages_dropped_disk: int = 0  # annotations under the free-space floor
@@ -207,6 +236,11 @@ class FlightLogStats:
     encode_errors: int = 0
     writer_cpu_s: float = 0.0  # CPU time of the writer thread
     queue_depth: int = 0
+
+    def count(self, kind: int, outcome: Outcome) -> None:
+        """One more frame (``kind`` :data:`_FRAME`) or other message, ``outcome``."""
+        name = f"{'frames' if kind == _FRAME else 'messages'}_{outcome}"
+        setattr(self, name, getattr(self, name) + 1)
 
     @property
     def log_state_code(self) -> int:
@@ -335,7 +369,6 @@ def _flush_writer(writer: Writer, fh: IO[bytes]) -> None:
 # ---------------------------------------------------------------------------------------
 # Writer
 
-_FRAME, _ANNOT, _MAV, _JSON = 0, 1, 2, 3
 _STOP = object()
 _Item = tuple[Any, ...]
 
@@ -379,21 +412,9 @@ class FlightLogWriter:
         self._drain_deadline = math.inf
         self._thread: threading.Thread | None = None
 
-        # counters (producer side and writer side; read under the lock for snapshots)
-        self._frames_queued = 0
-        self._frames_dropped_queue = 0
-        self._messages_queued = 0
-        self._messages_dropped_queue = 0
-        self._frames_logged = 0
-        self._frames_dropped_disk = 0
-        self._frames_dropped_error = 0
-        self._messages_logged = 0
-        self._messages_dropped_disk = 0
-        self._messages_dropped_error = 0
-        self._encode_errors = 0
-        self._write_errors = 0
-        self._cpu_s = 0.0
-        self._files: list[Path] = []
+        # The counts (producer and writer side, under the lock); bytes_written is the
+        # closed parts' bytes plus the open part's, kept apart while it grows.
+        self._counts = FlightLogStats()
         self._bytes_closed = 0
         self._bytes_current = 0
 
@@ -469,7 +490,7 @@ class FlightLogWriter:
 
     def log_frame(self, camera_id: int, t_capture_us: int, image: np.ndarray) -> bool:
         """Queue a camera frame (BGR or grey uint8; a reference is kept, not a copy)."""
-        return self._put((_FRAME, camera_id, t_capture_us, image), frame=True)
+        return self._put((_FRAME, camera_id, t_capture_us, image))
 
     def log_annotations(
         self,
@@ -483,7 +504,7 @@ class FlightLogWriter:
             item = (_ANNOT, camera_id, t_capture_us, tuple(circles))  # a few tuples: cheap
         except Exception:
             item = (_ANNOT, camera_id, t_capture_us, ())
-        return self._put(item, frame=False)
+        return self._put(item)
 
     def log_mavlink(self, direction: Literal["in", "out"], t_us: int, data: bytes) -> bool:
         """Queue raw MAVLink bytes as received (``"in"``) or sent (``"out"``). ``bytes``
@@ -493,32 +514,31 @@ class FlightLogWriter:
                 data = bytes(data)
             except Exception:
                 data = b""
-        return self._put((_MAV, direction, t_us, data), frame=False)
+        return self._put((_MAV, direction, t_us, data))
 
     def log_json(self, topic: str, t_us: int, doc: Mapping[str, Any]) -> bool:
         """Queue a JSON document on ``topic`` (e.g. ``/tcm/result``)."""
-        return self._put((_JSON, topic, t_us, doc), frame=False)
+        return self._put((_JSON, topic, t_us, doc))
 
-    def _put(self, item: _Item, *, frame: bool) -> bool:
+    def _put(self, item: _Item) -> bool:
         ok = False
         if self._accepting:
             try:
                 self._q.put_nowait(item)
                 ok = True
-            except queue.Full:
+            except Exception:  # queue.Full, or anything: never raise into the daemon
                 pass
-            except Exception:  # never raise into the daemon
-                pass
-        with self._lock:
-            if frame:
+        c = self._counts
+        with self._lock:  # spelt out: this is the daemon's path (FlightLogStats.count is not)
+            if item[0] == _FRAME:
                 if ok:
-                    self._frames_queued += 1
+                    c.frames_queued += 1
                 else:
-                    self._frames_dropped_queue += 1
+                    c.frames_dropped_queue += 1
             elif ok:
-                self._messages_queued += 1
+                c.messages_queued += 1
             else:
-                self._messages_dropped_queue += 1
+                c.messages_dropped_queue += 1
         return ok
 
     # -- state -------------------------------------------------------------------------
@@ -545,24 +565,13 @@ class FlightLogWriter:
 
     @property
     def stats(self) -> FlightLogStats:
+        """A snapshot of the counts (see :class:`FlightLogStats`)."""
         with self._lock:
-            return FlightLogStats(
-                frames_queued=self._frames_queued,
-                frames_logged=self._frames_logged,
-                frames_dropped_queue=self._frames_dropped_queue,
-                frames_dropped_disk=self._frames_dropped_disk,
-                messages_logged=self._messages_logged,
-                messages_dropped_queue=self._messages_dropped_queue,
+            return replace(
+                self._counts,
                 bytes_written=self._bytes_closed + self._bytes_current,
-                files=list(self._files),
-                write_errors=self._write_errors,
+                files=list(self._counts.files),
                 state=self.state,
-                frames_dropped_error=self._frames_dropped_error,
-                messages_queued=self._messages_queued,
-                messages_dropped_disk=self._messages_dropped_disk,
-                messages_dropped_error=self._messages_dropped_error,
-                encode_errors=self._encode_errors,
-                writer_cpu_s=self._cpu_s,
                 queue_depth=self._q.qsize(),
             )
 
@@ -575,7 +584,7 @@ class FlightLogWriter:
             log.exception("flight log writer thread failed")
             self._enter_fault(RuntimeError("writer thread failed"), time.monotonic())
         finally:
-            self._cpu_s = time.thread_time()
+            self._counts.writer_cpu_s = time.thread_time()
 
     def _loop(self) -> None:
         interval = self.config.flush_interval_s
@@ -595,7 +604,7 @@ class FlightLogWriter:
             if now >= next_flush:
                 self._flush(now)
                 next_flush = now + interval
-            self._cpu_s = time.thread_time()
+            self._counts.writer_cpu_s = time.thread_time()
         while time.monotonic() < self._drain_deadline:
             try:
                 item = self._q.get_nowait()
@@ -612,33 +621,20 @@ class FlightLogWriter:
                 item = self._q.get_nowait()
             except queue.Empty:
                 return
-            if item is _STOP:
-                continue
-            with self._lock:
-                if item[0] == _FRAME:
-                    self._frames_dropped_queue += 1
-                else:
-                    self._messages_dropped_queue += 1
+            if item is not _STOP:
+                self._count(item[0], "dropped_queue")
 
-    def _count_drop(self, kind: int, why: Literal["disk", "error"]) -> None:
+    def _count(self, kind: int, outcome: Outcome) -> None:
         with self._lock:
-            if kind == _FRAME:
-                if why == "disk":
-                    self._frames_dropped_disk += 1
-                else:
-                    self._frames_dropped_error += 1
-            elif why == "disk":
-                self._messages_dropped_disk += 1
-            else:
-                self._messages_dropped_error += 1
+            self._counts.count(kind, outcome)
 
     def _process(self, item: _Item) -> None:
         kind = item[0]
         if kind in (_FRAME, _ANNOT) and self._disk_low:
-            self._count_drop(kind, "disk")
+            self._count(kind, "dropped_disk")
             return
         if self._mcap is None:
-            self._count_drop(kind, "error")
+            self._count(kind, "dropped_error")
             return
         try:
             topic, channel_kind, t_us, payload = self._encode(item)
@@ -647,9 +643,9 @@ class FlightLogWriter:
             if not (0 <= publish_ns < 1 << 64 and 0 <= log_ns < 1 << 64):
                 raise ValueError(f"time stamp out of range: t_us={t_us}")
         except Exception as e:
-            self._count_drop(kind, "error")
             with self._lock:
-                self._encode_errors += 1
+                self._counts.count(kind, "dropped_error")
+                self._counts.encode_errors += 1
             if not self._encode_error_reported:
                 self._encode_error_reported = True
                 self._event("warning", f"log: cannot encode {_KIND_NAMES[kind]}: {e}")
@@ -657,14 +653,10 @@ class FlightLogWriter:
         try:
             self._write(topic, channel_kind, log_ns, publish_ns, payload)
         except Exception as e:
-            self._count_drop(kind, "error")
+            self._count(kind, "dropped_error")
             self._enter_fault(e, time.monotonic())
             return
-        with self._lock:
-            if kind == _FRAME:
-                self._frames_logged += 1
-            else:
-                self._messages_logged += 1
+        self._count(kind, "logged")
         if self._fh is not None and self._fh.tell() >= self._rotate_bytes:
             self._rotate(time.monotonic())
 
@@ -673,7 +665,7 @@ class FlightLogWriter:
         kind = item[0]
         if kind == _MAV:
             _, direction, t_us, data = item
-            return MAVLINK_TOPICS[direction], "mavlink", t_us, data
+            return topics.MAVLINK[direction], "mavlink", t_us, data
         if kind == _JSON:
             _, topic, t_us, doc = item
             text = json.dumps(_jsonable(doc), separators=(",", ":"), allow_nan=False)
@@ -684,13 +676,13 @@ class FlightLogWriter:
         if kind == _FRAME:
             msg = CompressedImage(
                 timestamp=_timestamp(ts_ns),
-                frame_id=f"camera{camera_id}",
+                frame_id=topics.camera_frame_id(camera_id),
                 data=self._encode_image(obj),
                 format=self.config.image_format,
             )
-            return f"/camera{camera_id}/image", IMAGE_SCHEMA, t_us, msg.SerializeToString()
+            return topics.camera_image(camera_id), IMAGE_SCHEMA, t_us, msg.SerializeToString()
         payload = _annotations(ts_ns, tuple(obj))
-        return f"/camera{camera_id}/annotations", ANNOTATIONS_SCHEMA, t_us, payload
+        return topics.camera_annotations(camera_id), ANNOTATIONS_SCHEMA, t_us, payload
 
     def _encode_image(self, image: np.ndarray) -> bytes:
         """JPEG (``jpeg_quality``) or PNG bytes of a BGR/grey uint8 image."""
@@ -797,19 +789,19 @@ class FlightLogWriter:
             self._open_file()
         except Exception as e:
             with self._lock:
-                self._write_errors += 1
+                self._counts.write_errors += 1
             log.debug("flight log retry failed: %s", e)
             self._next_retry = now + self._retry_interval_s
             return
         self._fault = False
         self._fault_reported = False
-        self._event("info", f"log: recording again ({self._files[-1].name})")
+        self._event("info", f"log: recording again ({self._counts.files[-1].name})")
 
     def _open_file(self) -> None:
         """Open the next part: header, metadata record, flushed; raises on failure."""
         self.directory.mkdir(parents=True, exist_ok=True)
         for _ in range(100_000):
-            path = self.directory / f"tcm-{self._session}-{self._counter:03d}.mcap"
+            path = self.directory / part_name(self._session, self._counter)
             self._counter += 1
             try:
                 fh = self._open_stream(path)
@@ -824,7 +816,7 @@ class FlightLogWriter:
             )
             writer.start(profile="", library=f"tcm-companion/{__version__} {LIBRARY_IDENTIFIER}")
             writer.add_metadata(
-                METADATA_NAME, {**self._metadata, "log_part": str(len(self._files))}
+                METADATA_NAME, {**self._metadata, "log_part": str(len(self._counts.files))}
             )
             fh.flush()
         except BaseException:
@@ -836,7 +828,7 @@ class FlightLogWriter:
         self._dirty = False
         self._file_opened_at = time.monotonic()
         with self._lock:
-            self._files.append(path)
+            self._counts.files.append(path)
             self._bytes_current = fh.tell()
 
     def _open_stream(self, path: Path) -> IO[bytes]:
@@ -865,7 +857,7 @@ class FlightLogWriter:
 
     def _enter_fault(self, exc: BaseException, now: float) -> None:
         with self._lock:
-            self._write_errors += 1
+            self._counts.write_errors += 1
             self._bytes_closed += self._bytes_current
             self._bytes_current = 0
         if self._fh is not None:
@@ -890,111 +882,3 @@ class FlightLogWriter:
 
 
 _KIND_NAMES = {_FRAME: "frame", _ANNOT: "annotations", _MAV: "MAVLink", _JSON: "JSON"}
-
-
-# ---------------------------------------------------------------------------------------
-# Reader
-
-
-@dataclass(frozen=True)
-class LogRecord:
-    """One message of the log."""
-
-    topic: str
-    log_time_ns: int  # wall clock
-    publish_time_ns: int  # companion monotonic clock (= t_us * 1000)
-    data: bytes
-    schema_name: str  # "" for schema-less (MAVLink)
-    message_encoding: str  # "protobuf", "json", "mavlink"
-
-
-def log_files(path: str | Path) -> list[Path]:
-    """A ``.mcap`` file → ``[it]``; a directory → its ``tcm-*.mcap`` parts in order
-    (session time stamp, then part counter, numerically)."""
-    p = Path(path)
-    if p.is_dir():
-
-        def key(f: Path) -> tuple[int, str, int, str]:
-            m = _FILE_RE.match(f.name)
-            return (0, m.group(1), int(m.group(2)), f.name) if m else (1, "", 0, f.name)
-
-        return sorted((f for f in p.glob("tcm-*.mcap") if f.is_file()), key=key)
-    if p.is_file():
-        return [p]
-    raise FileNotFoundError(errno.ENOENT, "no flight log there", str(p))
-
-
-def read_log(path: str | Path, topics: Container[str] | None = None) -> Iterator[LogRecord]:
-    """Every message of a file or of a directory's parts, in write order, read with the
-    non-seeking reader; a truncated part (crash) yields what is readable, then the next."""
-    for f in log_files(path):
-        yield from _read_part(f, topics)
-
-
-def _read_part(path: Path, topics: Container[str] | None) -> Iterator[LogRecord]:
-    with open(path, "rb") as fh:
-        records = StreamReader(fh, validate_crcs=True).records
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
-        while True:
-            try:
-                rec = next(records)
-            except StopIteration:
-                return
-            except Exception as e:  # truncated or corrupt tail: stop quietly
-                log.debug("%s: stopped reading at a damaged record: %r", path, e)
-                return
-            if isinstance(rec, Message):
-                ch = channels.get(rec.channel_id)
-                if ch is None or (topics is not None and ch.topic not in topics):
-                    continue
-                schema = schemas.get(ch.schema_id)
-                yield LogRecord(
-                    topic=ch.topic,
-                    log_time_ns=rec.log_time,
-                    publish_time_ns=rec.publish_time,
-                    data=rec.data,
-                    schema_name=schema.name if schema is not None else "",
-                    message_encoding=ch.message_encoding,
-                )
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Schema):
-                schemas[rec.id] = rec
-
-
-def read_metadata(path: str | Path) -> dict[str, str]:
-    """The first ``"tcm-companion"`` metadata record of the log ({} if there is none)."""
-    for f in log_files(path):
-        with open(f, "rb") as fh:
-            try:
-                for rec in StreamReader(fh, emit_chunks=True).records:
-                    if isinstance(rec, Metadata) and rec.name == METADATA_NAME:
-                        return dict(rec.metadata)
-            except Exception as e:
-                log.debug("%s: no readable metadata: %r", f, e)
-    return {}
-
-
-def decode_image(rec: LogRecord) -> tuple[int, int, np.ndarray]:
-    """``(camera_id, t_capture_us, BGR uint8 image)`` of a ``/camera{N}/image`` record."""
-    if rec.schema_name != IMAGE_SCHEMA:
-        raise ValueError(f"{rec.topic}: not a {IMAGE_SCHEMA} record ({rec.schema_name!r})")
-    msg = CompressedImage.FromString(rec.data)
-    m = _IMAGE_TOPIC_RE.match(rec.topic) or re.match(r"^camera(\d+)$", msg.frame_id)
-    if m is None:
-        raise ValueError(f"{rec.topic}: no camera id in topic or frame_id {msg.frame_id!r}")
-    image = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_COLOR)
-    if image is None:
-        raise ValueError(f"{rec.topic}: undecodable {msg.format} image")
-    return int(m.group(1)), rec.publish_time_ns // 1000, image
-
-
-def decode_json(rec: LogRecord) -> dict[str, Any]:
-    """The document of a JSON record."""
-    if rec.message_encoding != "json":
-        raise ValueError(f"{rec.topic}: not a JSON record ({rec.message_encoding!r})")
-    doc = json.loads(rec.data)
-    if not isinstance(doc, dict):
-        raise ValueError(f"{rec.topic}: JSON record is not an object")
-    return doc

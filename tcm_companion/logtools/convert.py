@@ -39,7 +39,7 @@ import cv2
 import tomli_w
 
 from ..core.camera import CameraModel, CameraModelError, camera_from_dict
-from ..io import flightlog
+from ..io import flightlog, topics
 from ..io.scenario import FORMAT, FRAMES_HEADER, ScenarioError, load_scenario
 from ..io.tlog import TlogError, TlogWriter, read_tlog
 from ..service.logdocs import annotation_circles, result_doc
@@ -211,7 +211,7 @@ def log_to_scenario(
     metadata = flightlog.read_metadata(log_path)
     camera = camera_from_metadata(metadata, camera_id, log_path)
 
-    image_topic = f"/camera{camera_id}/image"
+    image_topic = topics.camera_image(camera_id)
     frames_dir = out / "frames"
     frames_dir.mkdir(parents=True, exist_ok=True)
 
@@ -219,8 +219,8 @@ def log_to_scenario(
     chunks: list[tuple[int, bytes]] = []
     offsets_ns: list[int] = []
     skipped = 0
-    for rec in flightlog.read_log(log_path, topics=[image_topic, "/mavlink/in"]):
-        if rec.topic == "/mavlink/in":
+    for rec in flightlog.read_log(log_path, topics=[image_topic, topics.MAVLINK_IN]):
+        if rec.topic == topics.MAVLINK_IN:
             chunks.append((rec.publish_time_ns // 1000, bytes(rec.data)))
             offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
             continue
@@ -255,7 +255,8 @@ def log_to_scenario(
         raise LogConversionError(f"{log_path}: no messages on {image_topic}")
     if not chunks:
         raise LogConversionError(
-            f"{log_path}: no messages on /mavlink/in (a scenario needs the autopilot telemetry)"
+            f"{log_path}: no messages on {topics.MAVLINK_IN} (a scenario needs the autopilot "
+            "telemetry)"
         )
     offset_us = _wall_minus_mono_us(metadata, offsets_ns)
 
@@ -268,7 +269,7 @@ def log_to_scenario(
     frames_out = list(split_mavlink(iter(chunks), on_bad=count_bad))
     if not any(_msgid(f) in _MSGID_ATTITUDE for _, f in frames_out):
         raise LogConversionError(
-            f"{log_path}: /mavlink/in holds no ATTITUDE or ATTITUDE_QUATERNION "
+            f"{log_path}: {topics.MAVLINK_IN} holds no ATTITUDE or ATTITUDE_QUATERNION "
             "(the scenario format requires the autopilot's attitude)"
         )
 
@@ -310,7 +311,8 @@ def log_to_scenario(
         )
     if bad:
         summary.warnings.append(
-            f"{log_path}: {bad} bytes on /mavlink/in were not valid MAVLink frames (dropped)"
+            f"{log_path}: {bad} bytes on {topics.MAVLINK_IN} were not valid MAVLink frames "
+            "(dropped)"
         )
     for w in summary.warnings:
         log.warning("%s", w)
@@ -419,7 +421,7 @@ def scenario_to_log(
                     res = pipeline.step(image, t_us)
                     doc = replay_result_doc(res, threshold)
                     circles = annotation_circles(res, scenario.camera)
-                    _retry(f"result {i}", writer.log_json, "/tcm/result", t_us, doc)
+                    _retry(f"result {i}", writer.log_json, topics.RESULT, t_us, doc)
                     _retry(f"annotations {i}", writer.log_annotations, 0, t_us, circles)
                     n_results += 1
             for t_m, frame in mavlink[j:]:

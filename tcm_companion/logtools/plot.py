@@ -38,6 +38,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from ..io import topics
+
 log = logging.getLogger(__name__)
 
 __all__ = [
@@ -102,9 +104,10 @@ def load_log_data(path: str | Path) -> PlotData:
     check_log_path(path)
     data = PlotData(source=path.name)
     chunks: list[tuple[int, bytes]] = []
-    for rec in flightlog.read_log(path, topics=["/tcm/result", "/tcm/health", "/mavlink/in"]):
+    wanted = [topics.RESULT, topics.HEALTH, topics.MAVLINK_IN]
+    for rec in flightlog.read_log(path, topics=wanted):
         t_us = rec.publish_time_ns // 1000
-        if rec.topic == "/mavlink/in":
+        if rec.topic == topics.MAVLINK_IN:
             chunks.append((t_us, bytes(rec.data)))
             continue
         try:
@@ -112,11 +115,11 @@ def load_log_data(path: str | Path) -> PlotData:
         except ValueError as exc:
             log.warning("%s: %s message at %d us is not JSON (%s)", path, rec.topic, t_us, exc)
             continue
-        if rec.topic == "/tcm/result":
+        if rec.topic == topics.RESULT:
             if isinstance(doc.get("t_capture_us"), int):
                 data.results.append(doc)
             else:
-                log.warning("%s: /tcm/result at %d us has no t_capture_us (skipped)", path, t_us)
+                log.warning("%s: %s at %d us has no t_capture_us (skipped)", path, rec.topic, t_us)
         else:
             data.health.append((t_us, doc))
     for t_us, msg in parse_mavlink(iter(chunks)):
@@ -324,7 +327,7 @@ def _time_label(data: PlotData) -> str:
 # --------------------------------------------------------------------------------------
 def _plot_disparity(fig: Figure, data: PlotData, t0: int) -> str:
     if not data.results:
-        return "no /tcm/result documents"
+        return f"no {topics.RESULT} documents"
     tracks = _tracks(data, t0)
     if not any(np.isfinite(tr.values("disparity")).any() for tr in tracks):
         return "no disparity values (no object was ever decided)"
@@ -360,9 +363,9 @@ def _plot_disparity(fig: Figure, data: PlotData, t0: int) -> str:
 def _plot_bearings(fig: Figure, data: PlotData, t0: int) -> str:
     tracks = _tracks(data, t0)
     if not tracks:
-        return "no tracked objects in /tcm/result"
+        return f"no tracked objects in {topics.RESULT}"
     if not any(np.isfinite(tr.values("azimuth_ned_deg")).any() for tr in tracks):
-        return "no object bearings (azimuth_ned_deg) in /tcm/result"
+        return f"no object bearings (azimuth_ned_deg) in {topics.RESULT}"
     axes = fig.subplots(2, 1, sharex=True)
     for ax, key, truth_key, label in (
         (axes[0], "azimuth_ned_deg", "azimuth_deg", "azimuth, clockwise from north (°)"),
@@ -432,7 +435,7 @@ def _plot_ttc(fig: Figure, data: PlotData, t0: int) -> str:
 def _plot_egomotion(fig: Figure, data: PlotData, t0: int) -> str:
     rows = [(d, d["egomotion"]) for d in data.results if d.get("egomotion")]
     if not rows:
-        return "no egomotion estimates in /tcm/result"
+        return f"no egomotion estimates in {topics.RESULT}"
     t = np.array([(int(d["t_capture_us"]) - t0) / 1e6 for d, _ in rows])
     sigma = np.degrees([_f(e.get("sigma_rad")) for _, e in rows])
     inl = np.array([_f(e.get("inlier_ratio")) for _, e in rows])
@@ -469,7 +472,7 @@ def _plot_latency(fig: Figure, data: PlotData, t0: int) -> str:
         lat = lat[np.isfinite(lat)]
         what = "pipeline processing time per frame (ms)"
         if not lat.size:
-            return "no latency_ms or timings_ms.total in /tcm/result"
+            return f"no latency_ms or timings_ms.total in {topics.RESULT}"
         if not data.latency_is_processing_time:
             what += " — the log has no latency_ms"
     ax = fig.add_subplot()
@@ -506,7 +509,7 @@ def _plot_attitude(fig: Figure, data: PlotData, t0: int) -> str:
 
 def _plot_health(fig: Figure, data: PlotData, t0: int) -> str:
     if not data.health:
-        return "no /tcm/health documents"
+        return f"no {topics.HEALTH} documents"
     t = np.array([(tu - t0) / 1e6 for tu, _ in data.health])
     series = [
         ("frame_rate_hz", "frame rate (Hz)"),
@@ -515,7 +518,7 @@ def _plot_health(fig: Figure, data: PlotData, t0: int) -> str:
     ]
     present = [(k, lbl) for k, lbl in series if any(k in d for _, d in data.health)]
     if not present:
-        return "/tcm/health has none of frame_rate_hz, latency_ms, frames_dropped"
+        return f"{topics.HEALTH} has none of frame_rate_hz, latency_ms, frames_dropped"
     axes = np.atleast_1d(fig.subplots(len(present), 1, sharex=True))
     for ax, (key, label) in zip(axes, present):
         ax.plot(t, [_f(d.get(key)) for _, d in data.health], ".-", ms=3, lw=0.8)

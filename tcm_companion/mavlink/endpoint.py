@@ -7,21 +7,26 @@ What it does, as a well-behaved companion component (mavlink.io microservices):
   191 by default, system id learned from the autopilot; the autopilot is *lost* after
   ~5 missed heartbeats and *rebooted* when its boot clock goes backwards.
 - Requests the telemetry it needs with MAV_CMD_SET_MESSAGE_INTERVAL, one command at a
-  time (a COMMAND_ACK does not say which message it is for), retried on no ACK, falling
-  back from ATTITUDE_QUATERNION to ATTITUDE if refused, and re-requested when the
-  measured rate falls short (a rebooted autopilot forgets).
+  time, retried, with a fallback and rate checks (:mod:`.streams`).
+- Telemetry messages become samples by the one rule replay uses too
+  (:func:`tcm_companion.io.samples.parse_telemetry`); unusable ones are
+  :class:`TelemetryRejected`.
 - TIMESYNC requests; replies matched by ``ts1`` (the message has no target fields) and
-  filtered (:mod:`.timesync`); the autopilot's own requests answered.
+  filtered (:mod:`.timesync`, which also says when an offset is fresh); the autopilot's
+  own requests answered.
 - The parameter protocol for our tunables (:mod:`.params`), COMMAND_LONG/COMMAND_INT to
-  us answered with COMMAND_ACK (UNSUPPORTED when we do not support it), STATUSTEXT
-  rate-limited, optional MAVLink 2 signing (:mod:`.codec`).
+  us answered with COMMAND_ACK (UNSUPPORTED when we do not support it), optional
+  MAVLink 2 signing (:mod:`.codec`).
+- STATUSTEXT through a bounded queue, each condition rate-limited (:mod:`.statustext`);
+  a collision alarm is one condition per track.
 - Outputs: TCM_OBJECT_STATUS for every object of every frame, TCM_PIPELINE_HEALTH at
   2 Hz, and when enabled OBSTACLE_DISTANCE (10 Hz, only while frames are fresh),
   OBSTACLE_DISTANCE_3D and ADSB_VEHICLE (:mod:`.outputs`).
 
-It never raises into its caller: malformed input is counted in :attr:`stats` and dropped.
-Time is always an argument (``now_us``, the companion's clock, the same clock as the
-frame times); :meth:`next_deadline_us` says when :meth:`poll` has work next.
+The events it returns are in :mod:`.events` (re-exported here). It never raises into its
+caller: malformed input is counted in :attr:`stats` and dropped. Time is always an
+argument (``now_us``, the companion's clock, the same clock as the frame times);
+:meth:`next_deadline_us` says when :meth:`poll` has work next.
 """
 
 from __future__ import annotations
@@ -36,12 +41,42 @@ from typing import Any, Literal
 import numpy as np
 
 from ..core.pipeline import FrameResult, ObjectResult
-from ..core.telemetry import AttitudeSample, ClockSync, PositionSample, TelemetrySample
+from ..core.telemetry import ClockSync, PositionSample
+from ..io.samples import TELEMETRY_TYPES, Rejected, parse_telemetry
 from . import outputs
 from . import tcm_dialect as d
 from .codec import MavlinkCodec, SigningConfig
+from .events import (
+    AutopilotFound,
+    AutopilotLost,
+    AutopilotRebooted,
+    CommandReceived,
+    Event,
+    GlobalOrigin,
+    HealthReport,
+    ParamChanged,
+    TelemetryReceived,
+    TelemetryRejected,
+)
 from .params import PARAMS, ParamTable
+from .statustext import CollisionConditions, StatustextQueue
+from .streams import StreamRequests
 from .timesync import TimesyncFilter
+
+__all__ = [
+    "AutopilotFound",
+    "AutopilotLost",
+    "AutopilotRebooted",
+    "CommandReceived",
+    "CompanionEndpoint",
+    "EndpointConfig",
+    "Event",
+    "GlobalOrigin",
+    "HealthReport",
+    "ParamChanged",
+    "TelemetryReceived",
+    "TelemetryRejected",
+]
 
 MAV_COMP_ID_ALL = 0
 _FTP_NAK = 129  # MAVLink FTP opcode
@@ -70,96 +105,6 @@ class EndpointConfig:
     statustext_queue: int = 16
 
 
-# -- events ---------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class AutopilotFound:
-    system_id: int
-    component_id: int
-    autopilot: int  # MAV_AUTOPILOT
-    vehicle_type: int  # MAV_TYPE
-
-
-@dataclass(frozen=True)
-class AutopilotLost:
-    silent_us: int
-
-
-@dataclass(frozen=True)
-class AutopilotRebooted:
-    pass
-
-
-@dataclass(frozen=True)
-class TelemetryReceived:
-    sample: TelemetrySample
-
-
-@dataclass(frozen=True)
-class TelemetryRejected:
-    """A telemetry message arrived on time but could not be used (NaN, not a rotation)."""
-
-    kind: str  # "attitude" or "position"
-    reason: str
-
-
-@dataclass(frozen=True)
-class ParamChanged:
-    name: str
-    value: float
-
-
-@dataclass(frozen=True)
-class CommandReceived:
-    command: int
-    params: tuple[float, ...]
-    source: tuple[int, int]
-    result: int  # the MAV_RESULT we answered
-
-
-@dataclass(frozen=True)
-class GlobalOrigin:
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-
-
-Event = (
-    AutopilotFound
-    | AutopilotLost
-    | AutopilotRebooted
-    | TelemetryReceived
-    | TelemetryRejected
-    | ParamChanged
-    | CommandReceived
-    | GlobalOrigin
-)
-
-
-@dataclass(frozen=True)
-class HealthReport:
-    """What the daemon knows about the pipeline, for TCM_PIPELINE_HEALTH."""
-
-    frame_rate_hz: float = 0.0
-    latency_ms: float = 0.0
-    frames_dropped: int = 0
-    egomotion_source: int = d.TCM_EGOMOTION_SOURCE_NONE
-    egomotion_quality_pct: int = 0
-    health_flags: int = 0
-    objects: int = 0
-    log_state: int = d.TCM_LOG_STATE_OFF
-
-
-@dataclass
-class _Request:
-    """One SET_MESSAGE_INTERVAL we want honoured."""
-
-    msg_id: int
-    rate_hz: float
-    acked_at_us: int | None = None
-    attempts: int = 0
-    refused: bool = False
-
-
 @dataclass
 class _Autopilot:
     system_id: int
@@ -167,12 +112,6 @@ class _Autopilot:
     last_heartbeat_us: int
     lost: bool = False
     last_boot_ms: int = -1
-
-
-@dataclass
-class _Statustext:
-    severity: int
-    text: str
 
 
 class CompanionEndpoint:
@@ -197,26 +136,37 @@ class CompanionEndpoint:
         self.vehicle_pos_ned_m: np.ndarray | None = None
         self._out = bytearray()
         self._events: list[Event] = []
-        self._start_us = now_us
         self._next_heartbeat = now_us
         self._next_timesync = now_us
         self._next_health = now_us
         self._next_obstacle = now_us
-        self._next_request = now_us
         self._timesync_sent: deque[int] = deque(maxlen=16)  # ts1 values (ns) awaiting replies
-        self._requests = self._wanted_requests()
-        self._pending: _Request | None = None
-        self._rx_count: Counter[int] = Counter()
-        self._rx_since_us: dict[int, int] = {}
+        attitude_id = (
+            d.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
+            if config.attitude_message == "ATTITUDE_QUATERNION"
+            else d.MAVLINK_MSG_ID_ATTITUDE
+        )
+        self.streams = StreamRequests(
+            [
+                (attitude_id, config.attitude_rate_hz),
+                (d.MAVLINK_MSG_ID_LOCAL_POSITION_NED, config.position_rate_hz),
+            ],
+            config.request_retry_us,
+            config.rate_check_us,
+            self.stats,
+            now_us,
+        )
+        self.statustexts = StatustextQueue(
+            config.statustext_min_interval_us,
+            config.statustext_repeat_us,
+            config.statustext_queue,
+            self.stats,
+            now_us,
+        )
+        self._collisions = CollisionConditions(config.collision_clear_us)
         self._health = HealthReport()
         self._last_objects: tuple[ObjectResult, ...] = ()
         self._last_frame_us: int | None = None
-        self._statustext: deque[_Statustext] = deque()
-        self._statustext_sent: dict[str, int] = {}  # condition -> when last queued
-        self._statustext_log: deque[str] = deque(maxlen=256)
-        # track id -> companion time of its last alarming frame (a collision condition)
-        self._collision_alarm_us: dict[int, int] = {}
-        self._next_statustext = now_us
         self._threshold = threshold
 
     # -- identity --------------------------------------------------------------------------
@@ -254,7 +204,7 @@ class CompanionEndpoint:
             return
         ap = self.autopilot
         from_autopilot = ap is not None and src == (ap.system_id, ap.component_id)
-        if kind in ("ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED"):
+        if kind in TELEMETRY_TYPES:
             if from_autopilot:
                 self._on_telemetry(msg, now_us)
             else:
@@ -262,8 +212,12 @@ class CompanionEndpoint:
         elif kind == "TIMESYNC":
             self._on_timesync(msg, now_us)
         elif kind == "COMMAND_ACK":
-            if from_autopilot and msg.target_system in (0, self.system_id):
-                self._on_command_ack(msg, now_us)
+            if (
+                from_autopilot
+                and msg.target_system in (0, self.system_id)
+                and msg.command == d.MAV_CMD_SET_MESSAGE_INTERVAL
+            ):
+                self.streams.on_ack(msg.result, now_us)
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             if self._addressed_to_us(msg.target_system, msg.target_component, broadcast=False):
                 self._on_command(msg, src, now_us)
@@ -299,14 +253,14 @@ class CompanionEndpoint:
         if ap is not None and src == (ap.system_id, ap.component_id):
             if ap.lost:
                 ap.lost = False
-                self._restart_requests(now_us)
+                self.streams.restart(now_us)
                 self._events.append(AutopilotFound(src[0], src[1], msg.autopilot, msg.type))
             ap.last_heartbeat_us = now_us
             return
         if ap is None and is_autopilot:
             self.autopilot = _Autopilot(src[0], src[1], now_us)
             self.codec.src_system = src[0]  # we belong to the autopilot's system
-            self._restart_requests(now_us)
+            self.streams.restart(now_us)
             self._events.append(AutopilotFound(src[0], src[1], msg.autopilot, msg.type))
             self.statustext(d.MAV_SEVERITY_INFO, "TCM companion online", now_us)
         elif not is_autopilot:
@@ -322,8 +276,12 @@ class CompanionEndpoint:
             ap.last_boot_ms = boot_ms
         else:
             ap.last_boot_ms = max(ap.last_boot_ms, boot_ms)
-        self._rx_count[msg.get_msgId()] += 1
-        sample = self._sample(msg, now_us)
+        self.streams.received(msg.get_msgId())
+        sample = parse_telemetry(msg, now_us)
+        if isinstance(sample, Rejected):
+            self.stats[f"bad {sample.kind}"] += 1
+            self._events.append(TelemetryRejected(sample.kind, sample.reason))
+            return
         if sample is None:
             return
         self.telemetry_clock.observe(sample.time_boot_us, now_us)
@@ -340,122 +298,7 @@ class CompanionEndpoint:
         self.telemetry_clock = ClockSync()
         if self.autopilot is not None:
             self.autopilot.last_boot_ms = -1
-        self._restart_requests(now_us)
-
-    def _sample(self, msg: Any, now_us: int) -> TelemetrySample | None:
-        kind = msg.get_type()
-        boot_us = int(msg.time_boot_ms) * 1000
-        if kind == "ATTITUDE":
-            angles = (msg.roll, msg.pitch, msg.yaw)
-            if not all(math.isfinite(a) and abs(a) <= 2 * math.pi for a in angles):
-                self.stats["bad attitude"] += 1
-                self._events.append(TelemetryRejected("attitude", "ATTITUDE out of range"))
-                return None
-            return AttitudeSample.from_euler(boot_us, now_us, *angles)
-        if kind == "ATTITUDE_QUATERNION":
-            q = np.array([msg.q1, msg.q2, msg.q3, msg.q4], dtype=np.float64)
-            norm = float(np.linalg.norm(q))
-            if not math.isfinite(norm) or abs(norm - 1.0) > 0.1:
-                self.stats["bad attitude"] += 1
-                self._events.append(TelemetryRejected("attitude", "quaternion not unit"))
-                return None
-            return AttitudeSample.from_quaternion(boot_us, now_us, q)
-        pos = np.array([msg.x, msg.y, msg.z], dtype=np.float64)
-        vel = np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64)
-        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
-            self.stats["bad position"] += 1
-            self._events.append(TelemetryRejected("position", "LOCAL_POSITION_NED not finite"))
-            return None
-        return PositionSample(boot_us, now_us, pos, vel)
-
-    # -- telemetry requests -------------------------------------------------------------------
-    def _wanted_requests(self) -> list[_Request]:
-        att = (
-            d.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
-            if self.config.attitude_message == "ATTITUDE_QUATERNION"
-            else d.MAVLINK_MSG_ID_ATTITUDE
-        )
-        return [
-            _Request(att, self.config.attitude_rate_hz),
-            _Request(d.MAVLINK_MSG_ID_LOCAL_POSITION_NED, self.config.position_rate_hz),
-        ]
-
-    def _restart_requests(self, now_us: int) -> None:
-        for r in self._requests:
-            r.acked_at_us = None
-            r.attempts = 0
-        self._pending = None
-        self._next_request = now_us
-        self._rx_count.clear()
-        self._rx_since_us.clear()
-
-    def _service_requests(self, now_us: int) -> None:
-        if not self.autopilot_connected or now_us < self._next_request:
-            return
-        if self._pending is not None and self._pending.acked_at_us is None:
-            self.stats["request retries"] += 1  # no ACK in time: send it again
-        todo = next((r for r in self._requests if r.acked_at_us is None and not r.refused), None)
-        if todo is None:
-            self._check_rates(now_us)
-            self._next_request = now_us + self.config.request_retry_us
-            return
-        ap = self.autopilot
-        assert ap is not None
-        todo.attempts += 1
-        self._pending = todo
-        self._send(
-            d.MAVLink_command_long_message(
-                ap.system_id,
-                ap.component_id,
-                d.MAV_CMD_SET_MESSAGE_INTERVAL,
-                0,
-                float(todo.msg_id),
-                1e6 / todo.rate_hz,
-                0,
-                0,
-                0,
-                0,
-                0,
-            ),
-            now_us,
-        )
-        self._next_request = now_us + self.config.request_retry_us
-
-    def _on_command_ack(self, msg: Any, now_us: int) -> None:
-        if msg.command != d.MAV_CMD_SET_MESSAGE_INTERVAL or self._pending is None:
-            return
-        req, self._pending = self._pending, None
-        if msg.result == d.MAV_RESULT_ACCEPTED:
-            req.acked_at_us = now_us
-            self._rx_count[req.msg_id] = 0
-            self._rx_since_us[req.msg_id] = now_us
-        elif msg.result == d.MAV_RESULT_IN_PROGRESS:
-            req.attempts -= 1
-            return
-        elif req.msg_id == d.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
-            # Refused: the plain Euler message carries the same attitude.
-            req.msg_id = d.MAVLINK_MSG_ID_ATTITUDE
-            req.attempts = 0
-        else:
-            self.stats["requests refused"] += 1
-        self._next_request = now_us  # on to the next request at once
-
-    def _check_rates(self, now_us: int) -> None:
-        """Re-request a stream that stopped or runs well below the rate we asked for."""
-        for r in self._requests:
-            since = self._rx_since_us.get(r.msg_id)
-            if r.acked_at_us is None or since is None:
-                continue
-            elapsed = now_us - since
-            if elapsed < self.config.rate_check_us:
-                continue
-            rate = self._rx_count[r.msg_id] * 1e6 / elapsed
-            if rate < 0.5 * r.rate_hz:
-                self.stats["streams re-requested"] += 1
-                r.acked_at_us = None
-                r.attempts = 0
-            self._rx_count[r.msg_id] = 0
-            self._rx_since_us[r.msg_id] = now_us
+        self.streams.restart(now_us)
 
     # -- TIMESYNC -------------------------------------------------------------------------------
     def _on_timesync(self, msg: Any, now_us: int) -> None:
@@ -489,18 +332,12 @@ class CompanionEndpoint:
 
     def has_time_base(self, now_us: int) -> bool:
         """Whether :meth:`boot_ms` maps companion times (TIMESYNC or the telemetry fit)."""
-        return (
-            self.timesync.synced
-            and self.timesync.age_us(now_us) < 10 * self.config.timesync_interval_us
-        ) or self.telemetry_clock.ready
+        return self.timesync.fresh(now_us) or self.telemetry_clock.ready
 
     def boot_ms(self, companion_us: int, now_us: int) -> int:
-        """Autopilot boot time (ms) of a companion-clock instant: TIMESYNC if fresh, else
-        the telemetry clock fit, else 0."""
-        if (
-            self.timesync.synced
-            and self.timesync.age_us(now_us) < 10 * self.config.timesync_interval_us
-        ):
+        """Autopilot boot time (ms) of a companion-clock instant: TIMESYNC if fresh
+        (:meth:`TimesyncFilter.fresh`), else the telemetry clock fit, else 0."""
+        if self.timesync.fresh(now_us):
             return max(0, int(self.timesync.to_autopilot_us(companion_us) // 1000))
         if self.telemetry_clock.ready:
             return max(0, int((companion_us - self.telemetry_clock.offset_us) // 1000))
@@ -614,46 +451,17 @@ class CompanionEndpoint:
     def statustexts_queued(self) -> list[str]:
         """The distinct STATUSTEXTs this endpoint queued lately (the last 256; most recent
         last)."""
-        return list(dict.fromkeys(self._statustext_log))
+        return self.statustexts.recent
 
     def statustext(self, severity: int, text: str, now_us: int, key: str | None = None) -> bool:
-        """Queue a STATUSTEXT; dropped (False) if the same condition went out recently.
+        """Queue a STATUSTEXT; dropped (False) if the same condition went out recently or
+        the queue is full (:class:`~.statustext.StatustextQueue`).
 
         A condition is ``key`` (default: the text itself). Texts that carry a changing
         number (a TTC, a rate) must pass a key naming the condition, or each new number
         would count as a new text and flood the ground station.
         """
-        cond = text if key is None else key
-        last = self._statustext_sent.get(cond)
-        if last is not None and now_us - last < self.config.statustext_repeat_us:
-            self.stats["statustext suppressed"] += 1
-            return False
-        if len(self._statustext) >= self.config.statustext_queue:
-            self.stats["statustext dropped"] += 1
-            return False
-        if len(self._statustext_sent) >= 256:  # bounded: forget conditions long past
-            horizon = now_us - self.config.statustext_repeat_us
-            for k in [k for k, t in self._statustext_sent.items() if t < horizon]:
-                del self._statustext_sent[k]
-        self._statustext_sent[cond] = now_us
-        self._statustext_log.append(text)
-        self._statustext.append(_Statustext(severity, text))
-        return True
-
-    def _service_statustext(self, now_us: int) -> None:
-        if not self._statustext or now_us < self._next_statustext:
-            return
-        item = self._statustext.popleft()
-        data = item.text.encode("utf-8", "replace")
-        if len(data) <= 50:
-            self._send(d.MAVLink_statustext_message(item.severity, data, 0, 0), now_us)
-        else:
-            # MAVLink 2 chunking: same id, increasing chunk_seq, last chunk NUL-terminated.
-            msg_id = (now_us // 1000) & 0xFFFF or 1
-            chunks = [data[i : i + 50] for i in range(0, len(data), 50)]
-            for seq, chunk in enumerate(chunks):
-                self._send(d.MAVLink_statustext_message(item.severity, chunk, msg_id, seq), now_us)
-        self._next_statustext = now_us + self.config.statustext_min_interval_us
+        return self.statustexts.queue(severity, text, now_us, key)
 
     def set_health(self, report: HealthReport) -> None:
         self._health = report
@@ -682,31 +490,17 @@ class CompanionEndpoint:
         self._announce_collisions(result, now_us)
 
     def _announce_collisions(self, result: FrameResult, now_us: int) -> None:
-        """One STATUSTEXT per collision condition, not per frame or per TTC value.
-
-        A track's condition starts with its first alarming frame (collision course,
-        ``ttc`` below TCM_TTC_ALARM) and lasts until it has not alarmed for
-        ``collision_clear_us``; a new condition of the same track is announced at most
-        once per ``statustext_repeat_us``.
-        """
+        """One STATUSTEXT per collision condition (:class:`~.statustext.CollisionConditions`),
+        not per frame or per TTC value; a new condition of the same track is announced at
+        most once per ``statustext_repeat_us``."""
         alarm = self.params.values["TCM_TTC_ALARM"]
-        clear_us = self.config.collision_clear_us
-        conds = self._collision_alarm_us
-        for tid in [t for t, last in conds.items() if now_us - last > clear_us]:
-            del conds[tid]
-        if alarm <= 0:
-            return
-        for obj in result.objects:
-            if not (obj.collision_course and obj.ttc_s < alarm):
-                continue
-            if obj.track_id not in conds:
-                self.statustext(
-                    d.MAV_SEVERITY_WARNING,
-                    f"TCM: collision course track {obj.track_id}, TTC {obj.ttc_s:.1f}s",
-                    now_us,
-                    key=f"collision course track {obj.track_id}",
-                )
-            conds[obj.track_id] = now_us
+        for obj in self._collisions.update(result.objects, alarm, now_us):
+            self.statustext(
+                d.MAV_SEVERITY_WARNING,
+                f"TCM: collision course track {obj.track_id}, TTC {obj.ttc_s:.1f}s",
+                now_us,
+                key=f"collision course track {obj.track_id}",
+            )
 
     # -- timers --------------------------------------------------------------------------------
     def poll(self, now_us: int) -> list[Event]:
@@ -733,9 +527,14 @@ class CompanionEndpoint:
         ):
             ap.lost = True
             self._events.append(AutopilotLost(now_us - ap.last_heartbeat_us))
-        self._service_requests(now_us)
+        if self.autopilot_connected:
+            assert ap is not None
+            request = self.streams.poll(now_us, (ap.system_id, ap.component_id))
+            if request is not None:
+                self._send(request, now_us)
         self._service_timesync(now_us)
-        self._service_statustext(now_us)
+        for text in self.statustexts.poll(now_us):
+            self._send(text, now_us)
         if now_us >= self._next_health:
             if self.params.values["TCM_OUT_HEALTH"]:
                 self._send(self._health_message(now_us), now_us)
@@ -764,10 +563,7 @@ class CompanionEndpoint:
     def _health_message(self, now_us: int) -> Any:
         h = self._health
         flags = h.health_flags
-        if (
-            not self.timesync.synced
-            or self.timesync.age_us(now_us) > 10 * self.config.timesync_interval_us
-        ):
+        if not self.timesync.fresh(now_us):
             flags |= d.TCM_HEALTH_TIMESYNC_LOST
         offset = self.timesync.offset_us
         rtt = self.timesync.last_rtt_us
@@ -790,12 +586,12 @@ class CompanionEndpoint:
         """When :meth:`poll` next has something to do."""
         deadlines = [self._next_heartbeat, self._next_health]
         if self.autopilot_connected:
-            deadlines += [self._next_request, self._next_timesync]
+            deadlines += [self.streams.next_us, self._next_timesync]
             ap = self.autopilot
             assert ap is not None
             deadlines.append(ap.last_heartbeat_us + self.config.autopilot_timeout_us + 1)
-        if self._statustext:
-            deadlines.append(self._next_statustext)
+        if self.statustexts.pending:
+            deadlines.append(self.statustexts.next_us)
         if self.params.values["TCM_OUT_OBST"]:
             deadlines.append(self._next_obstacle)
         return min(deadlines)

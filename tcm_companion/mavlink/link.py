@@ -3,27 +3,31 @@
 Like aioquic's ``asyncio/protocol.py``: the endpoint (:mod:`.endpoint`) holds all the
 protocol logic; this only moves bytes between it and a transport, wakes it at its
 deadlines, and hands its events to a callback. Frame outputs are pushed with
-:meth:`CompanionLink.send_frame` from the same event loop.
+:meth:`CompanionLink.send_frame` from the same event loop. (The daemon does not use this
+class: its :class:`~tcm_companion.service.companion.Companion` owns the endpoint and the
+daemon moves the bytes itself; this is the endpoint alone on a link, for tests, interop
+and tools.)
 
-The clock is injected (µs; by default ``time.monotonic_ns() // 1000``) and must be the
-clock the frame times are on, because the endpoint maps frame times to the autopilot's
-boot time through TIMESYNC.
+The clock is injected (:class:`~tcm_companion.io.aio.LoopClock`, µs; by default the
+companion monotonic clock) and must be the clock the frame times are on, because the
+endpoint maps frame times to the autopilot's boot time through TIMESYNC. Time stamps and
+waits are both on it.
 """
 
 from __future__ import annotations
 
 import asyncio
-import time
 from collections.abc import Callable
 
 from ..core.pipeline import FrameResult
-from ..io.aio import wait_event
+from ..io.aio import MONOTONIC, LoopClock, monotonic_us
 from ..io.transports import Transport, TransportClosed, TransportError, TransportTimeout
 from .endpoint import CompanionEndpoint, Event
 
+__all__ = ["CompanionLink", "monotonic_us"]
 
-def monotonic_us() -> int:
-    return time.monotonic_ns() // 1000
+_RETRY_US = 100_000  # a closed or failing transport is read again after this
+_POLL_MAX_US = 1_000_000  # the timer polls at least this often
 
 
 class CompanionLink:
@@ -34,13 +38,13 @@ class CompanionLink:
         transport: Transport,
         endpoint: CompanionEndpoint,
         on_event: Callable[[Event], None] | None = None,
-        clock_us: Callable[[], int] = monotonic_us,
+        clock: LoopClock = MONOTONIC,
         on_bytes: Callable[[str, int, bytes], object] | None = None,
     ) -> None:
         self.transport = transport
         self.endpoint = endpoint
         self.on_event = on_event
-        self.clock_us = clock_us
+        self.clock = clock
         # ("in" | "out", time µs, bytes) for every chunk received or handed to the
         # transport: the flight log records the link exactly (a .tlog can be rebuilt).
         self.on_bytes = on_bytes
@@ -49,7 +53,7 @@ class CompanionLink:
         self.send_errors = 0
 
     def now_us(self) -> int:
-        return self.clock_us()
+        return self.clock.now_us()
 
     def send_frame(self, result: FrameResult, camera_id: int = 0) -> None:
         """Queue one frame's outputs; they go out at once (the writer is woken)."""
@@ -94,10 +98,10 @@ class CompanionLink:
             except TransportClosed:
                 if self._stopping:
                     return
-                await asyncio.sleep(0.1)  # a reconnecting transport comes back
+                await self.clock.wait_until(None, self.now_us() + _RETRY_US)
                 continue
             except TransportError:
-                await asyncio.sleep(0.1)
+                await self.clock.wait_until(None, self.now_us() + _RETRY_US)
                 continue
             now = self.now_us()
             if self.on_bytes is not None:
@@ -110,9 +114,9 @@ class CompanionLink:
             now = self.now_us()
             self._dispatch(self.endpoint.poll(now))
             await self._flush()
-            delay = max(0.0, (self.endpoint.next_deadline_us() - self.now_us()) / 1e6)
+            deadline = min(self.endpoint.next_deadline_us(), self.now_us() + _POLL_MAX_US)
             self._wake.clear()
-            await wait_event(self._wake, min(delay, 1.0))
+            await self.clock.wait_until(self._wake, deadline)
 
     async def run(self) -> None:
         """Until :meth:`stop`: read, poll, write."""

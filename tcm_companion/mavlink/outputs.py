@@ -16,7 +16,7 @@ What each autopilot does with each message is in docs/mavlink.md.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -57,6 +57,16 @@ def object_range_m(obj: ObjectResult, object_radius_m: float) -> float:
     if object_radius_m > 0 and obj.angular_radius_rad > 0:
         return object_radius_m / math.sin(obj.angular_radius_rad)
     return NO_RANGE
+
+
+def ranged(
+    objects: Sequence[ObjectResult], object_radius_m: float
+) -> Iterator[tuple[ObjectResult, float]]:
+    """``(object, range m)`` of the objects whose range is known (:func:`object_range_m`)."""
+    for obj in objects:
+        rng = object_range_m(obj, object_radius_m)
+        if math.isfinite(rng):
+            yield obj, rng
 
 
 #: The meaning of our fields this companion follows (TCM_PIPELINE_HEALTH.protocol): 2 sends
@@ -126,10 +136,7 @@ def obstacle_distance(
 ) -> d.MAVLink_obstacle_distance_message:
     """72 × 5° sectors around the body (0 = forward, clockwise), nearest known range."""
     distances = [max_distance_cm + 1] * SECTORS
-    for obj in objects:
-        rng = object_range_m(obj, object_radius_m)
-        if not math.isfinite(rng):
-            continue
+    for obj, rng in ranged(objects, object_radius_m):
         az, _ = body_azel_rad(obj.bearing_body)
         cm = int(max(min_distance_cm, min(max_distance_cm, (rng - _surface(obj, rng)) * 100)))
         half = math.degrees(obj.angular_radius_rad)
@@ -164,10 +171,7 @@ def obstacle_distance_3d(
     max_distance_m: float = 30.0,
 ) -> list[d.MAVLink_obstacle_distance_3d_message]:
     out = []
-    for obj in objects:
-        rng = object_range_m(obj, object_radius_m)
-        if not math.isfinite(rng):
-            continue
+    for obj, rng in ranged(objects, object_radius_m):
         x, y, z = (float(c) * rng for c in obj.bearing_body)
         out.append(
             d.MAVLink_obstacle_distance_3d_message(
@@ -204,12 +208,7 @@ def adsb_vehicles(
     few hundred metres this concerns). ``velocities_ned_mps`` per track id, if known.
     """
     out = []
-    for obj in objects:
-        if obj.state != "moving":
-            continue
-        rng = object_range_m(obj, object_radius_m)
-        if not math.isfinite(rng):
-            continue
+    for obj, rng in ranged([o for o in objects if o.state == "moving"], object_radius_m):
         p = np.asarray(vehicle_pos_ned_m, dtype=np.float64) + rng * obj.bearing_ned
         lat = origin_lat_deg + math.degrees(p[0] / EARTH_RADIUS_M)
         lon = origin_lon_deg + math.degrees(

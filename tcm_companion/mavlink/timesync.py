@@ -10,6 +10,12 @@ rebooted, or its clock stepped) restarts the filter rather than being averaged i
 
 All times are integers: the companion clock in µs (whatever clock the caller uses
 everywhere), autopilot boot time in ns as on the wire.
+
+*Fresh.* An offset is used (the endpoint's ``time_boot_ms`` of our messages, the
+pipeline's clock) and TIMESYNC counts as working (health flag TIMESYNC_LOST clear) while
+its newest reply is younger than :data:`FRESH_US`: ten missed replies at the 1 Hz the
+endpoint asks once synchronised. :meth:`TimesyncFilter.fresh` is that rule, the one
+place it is written.
 """
 
 from __future__ import annotations
@@ -17,6 +23,9 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+
+#: A TIMESYNC offset is fresh while its newest reply is younger than this (µs).
+FRESH_US = 10_000_000
 
 
 @dataclass(frozen=True)
@@ -36,12 +45,14 @@ class TimesyncFilter:
         max_rtt_us: int = 200_000,
         jump_us: int = 50_000,
         max_age_us: int = 30_000_000,
+        fresh_us: int = FRESH_US,
     ) -> None:
         self.window = window
         self.best = best
         self.max_rtt_us = max_rtt_us
         self.jump_us = jump_us
         self.max_age_us = max_age_us
+        self.fresh_us = fresh_us
         self._samples: deque[TimesyncSample] = deque(maxlen=window)
         self._offset_us = math.nan
         self.last_rtt_us: int | None = None
@@ -63,6 +74,10 @@ class TimesyncFilter:
 
     def age_us(self, now_us: int) -> float:
         return now_us - self._samples[-1].at_us if self._samples else math.inf
+
+    def fresh(self, now_us: int) -> bool:
+        """Synchronised, and the newest reply is younger than ``fresh_us`` at ``now_us``."""
+        return self.synced and self.age_us(now_us) < self.fresh_us
 
     def add_reply(self, ts1_sent_us: int, tc1_remote_ns: int, now_us: int) -> TimesyncSample | None:
         """Take one reply to our request sent at ``ts1_sent_us``; returns the sample if used."""

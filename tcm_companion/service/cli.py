@@ -17,7 +17,6 @@ import logging
 import os
 import signal
 import sys
-import time
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
@@ -140,8 +139,15 @@ def cmd_run(args: argparse.Namespace) -> int:
         from .logsetup import log_directory
 
         log_dir = str(log_directory(config, state)) if config.logging.enabled else None
+        # The service's exit status is about the service, not the simulation's accuracy.
         return _run_sitl_until(
-            config, args.duration, printer, notifier=notifier, state_dir=str(state), log_dir=log_dir
+            config,
+            args.duration,
+            printer,
+            notifier=notifier,
+            state_dir=str(state),
+            log_dir=log_dir,
+            min_accuracy=None,
         )
 
     async def main_flight() -> int:
@@ -159,26 +165,25 @@ def cmd_run(args: argparse.Namespace) -> int:
         _install_signals(stop)
         if args.duration is not None:
             asyncio.get_running_loop().call_later(args.duration, stop.set)
+        from ..io.aio import monotonic_us
         from ..io.persist import SigningKeyError
         from ..mavlink.setup import make_endpoint, persist
 
         cameras = [CameraInput(cam.name, cam.model, source)]
         try:
-            endpoint, warnings = make_endpoint(config.mavlink, time.monotonic_ns() // 1000)
+            endpoint, warnings = make_endpoint(config.mavlink, monotonic_us())
         except SigningKeyError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         for w in warnings:
             log.warning("%s", w)
-        writer = log_state = None
+        flight_log = None
         if config.logging.enabled:
             from .logsetup import log_directory, start_flight_log
 
             log_dir = log_directory(config, state)
             # The parameters in force at start (persisted ones included): replay needs them.
-            writer, log_state = start_flight_log(
-                config, log_dir, cameras, endpoint, asyncio.get_running_loop()
-            )
+            flight_log = start_flight_log(config, log_dir, cameras, dict(endpoint.params.values))
             log.info("flight log in %s", log_dir)
         daemon = Daemon(
             config,
@@ -188,14 +193,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             notifier=notifier,
             watchdog_interval_us=wd_us,
             on_status=printer,
-            flight_log=writer,
-            log_state=log_state,
+            flight_log=flight_log,
         )
         try:
             summary = await daemon.run(stop)
         finally:
-            if writer is not None:
-                await asyncio.to_thread(writer.stop)  # drains the queue; off the loop
+            if flight_log is not None:
+                await asyncio.to_thread(flight_log.stop)  # drains the queue; off the loop
             with contextlib.suppress(OSError):
                 persist(config.mavlink, endpoint)
         if printer is not None:
@@ -266,9 +270,51 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
+    from .sitl import DEFAULT_MIN_ACCURACY
+
+    pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
+    min_accuracy = None if pct <= 0 else pct / 100.0
+    printer = _StatusPrinter(every=args.status_every)
+    if args.clock == "virtual":
+        return _run_sitl_virtual(config, args.duration, printer, args.log, min_accuracy)
     return _run_sitl_until(
-        config, args.duration, _StatusPrinter(every=args.status_every), log_dir=args.log
+        config, args.duration, printer, log_dir=args.log, min_accuracy=min_accuracy
     )
+
+
+def _run_sitl_virtual(
+    config: AppConfig,
+    duration_s: float,
+    printer: _StatusPrinter,
+    log_dir: str | None,
+    min_accuracy: float | None,
+) -> int:
+    """``sitl --clock virtual``: no event loop; SIGINT/SIGTERM end the simulation early."""
+    import threading
+
+    from .sitl import run_sitl_virtual
+
+    stop = threading.Event()
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(ValueError):  # not the main thread
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    try:
+        report = run_sitl_virtual(
+            config,
+            camera_model=config.camera.model,
+            duration_s=duration_s,
+            should_stop=stop.is_set,
+            on_status=printer,
+            log_dir=log_dir,
+            min_accuracy=min_accuracy,
+        )
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    printer.done()
+    print("\n".join(report.lines()))
+    return 0 if report.ok else 1
 
 
 def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
@@ -386,6 +432,23 @@ def add_parsers(sub: Any) -> None:
         " braked; the applet must stand down",
     )
     p.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    p.add_argument(
+        "--clock",
+        choices=("real", "virtual"),
+        default="real",
+        help="mock: real (default) runs the daemon in real time over loopback UDP with a"
+        " live status line; virtual runs the companion, the mock and the camera on one"
+        " simulated clock as fast as the CPU allows, the same results and flight log"
+        " every run",
+    )
+    p.add_argument(
+        "--min-accuracy",
+        type=float,
+        default=None,
+        metavar="PCT",
+        help="mock: fail (exit 1) when the accuracy of the decided object-frames after the"
+        " warm-up is below this, or nothing was decided (default 90; 0: not judged)",
+    )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument(
         "--status-every", type=int, default=5, help="status line every N s when not a terminal"

@@ -1,18 +1,47 @@
-"""The daemon's logic without its IO: frames, telemetry and time in; MAVLink out.
+"""The daemon's logic without its IO: frames, link bytes and time in; MAVLink bytes and
+outputs out.
 
-:class:`Companion` owns one :class:`~tcm_companion.core.pipeline.Pipeline` per camera,
-the :class:`~tcm_companion.mavlink.endpoint.CompanionEndpoint`, and the per-input health
-(:mod:`.inputs`). The asyncio daemon (:mod:`.daemon`) only moves frames from the camera
-threads and bytes from the link into it, and asks it when to wake; SITL, tests and the
-daemon therefore run exactly this code, and tests drive it with a fake clock.
+:class:`Companion` is the service, sans-IO in the manner of aioquic's ``QuicConnection``:
+every entry point takes the time as an argument (µs on the companion's monotonic clock,
+``_mono_us``), nothing here reads a clock, a socket or a camera, and it says when it next
+wants to run. It owns one :class:`~tcm_companion.core.pipeline.Pipeline` per camera (all
+reading one shared :class:`~tcm_companion.core.telemetry.TelemetryBuffer`), the
+:class:`~tcm_companion.mavlink.endpoint.CompanionEndpoint`, the per-input health
+(:mod:`.inputs`), one frame slot per camera, and the once-a-second health check.
+
+Its drivers only move things in and out, all through the same surface:
+
+- the asyncio daemon (:mod:`.daemon`: camera threads, a real transport, systemd),
+- the virtual-time SITL (:mod:`.sitl_virtual`: the mock autopilot, the simulated camera
+  and modelled links on one simulated clock),
+- process replay of a flight log (:mod:`tcm_companion.replay_log`), and the tests.
+
+The surface::
+
+    comp = Companion(cameras, pipeline_config, endpoint, now_mono_us, daemon_config)
+    comp.on_frame(camera_id, image, capture_mono_us, now_mono_us)   # a camera delivered
+    outputs = comp.receive_data(data, now_mono_us)                  # bytes from the link
+    outputs = comp.process_due(now_mono_us)                         # timers, one frame
+    data = comp.data_to_send()                                      # bytes for the link
+    comp.frame_sent(output, sent_mono_us)                           # the bytes went out
+    when = comp.next_deadline_us()                                  # call process_due then
+
+After each ``process_due`` a driver handles the outputs in order (a processed frame's
+result is logged *before* its bytes are written: replay relies on that order), then
+writes ``data_to_send()`` and reports the write time of each processed frame with
+``frame_sent`` (the latency in the health message is capture → written).
 
 Policies that live here:
 
-- **Attitude at the frame time.** A frame is processed at once when the autopilot's
-  newest attitude sample is at most ``attitude_lead_max_us`` older than the frame (the
-  pipeline slerps and, over that short span, extrapolates); otherwise it waits for the
-  sample after it, at most until ``attitude_wait_max_us`` after capture
-  (:meth:`Companion.frame_deadline_us`).
+- **One slot per camera.** A frame delivered while the previous one of its camera still
+  waits replaces it; the replaced one is counted as dropped (``stats.frames_dropped``),
+  and the health message flags the overload for 2 s. Stale frames are never queued.
+- **Attitude at the frame time.** A frame is ready at once when the autopilot's newest
+  attitude sample is at most ``attitude_lead_max_us`` older than the frame (the pipeline
+  slerps and, over that short span, extrapolates); otherwise it waits for the sample
+  after it, at most until ``attitude_wait_max_us`` after capture
+  (:meth:`Companion.frame_deadline_us`). Of several ready frames, the oldest capture
+  goes first; one frame per ``process_due``, so its bytes go out before the next frame.
 - **Stale inputs make objects unknown.** While the attitude input is unhealthy, or the
   position input is unhealthy and the egomotion source is the autopilot's, every
   object's state is ``unknown`` with the input's problem as the reason. When a camera
@@ -20,8 +49,14 @@ Policies that live here:
 - **A failing frame is not a failing daemon.** An exception in the pipeline is counted,
   reported (STATUSTEXT) and the frame yields no result; after
   ``rebuild_after_errors`` consecutive failures the camera's pipeline is rebuilt.
-- **Parameter changes** that touch the pipeline rebuild it with the new configuration
-  (its telemetry is kept; objects warm up again, about one interval).
+- **Parameter changes** from the ground station that touch the pipeline rebuild it with
+  the new configuration (the shared telemetry is kept; objects warm up again).
+- **Nothing is sent before the autopilot's boot clock is known** (TIMESYNC or the
+  telemetry): a ``time_boot_ms`` of 0 would read as ancient.
+- **Once a second** (``health_interval_us``, on absolute deadlines that skip rather
+  than burst after a stall): input health, STATUSTEXT on changes, the health message's
+  content, the flight log falling behind, and a :class:`HealthChecked` output that the
+  daemon turns into the systemd watchdog ping and status line.
 """
 
 from __future__ import annotations
@@ -30,7 +65,7 @@ import dataclasses
 import logging
 import math
 from collections import Counter, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -105,14 +140,70 @@ class DaemonConfig:
 @dataclass
 class CompanionStats:
     frames_processed: int = 0
-    frames_dropped: int = 0  # superseded by a newer frame before processing
+    frames_dropped: int = 0  # superseded by a newer frame before processing, or at stop
     frames_failed: int = 0  # the pipeline raised
-    frames_waited: int = 0  # waited for the attitude after them
+    frames_waited: int = 0  # processed after waiting for the attitude after them
     frames_without_time_base: int = 0  # processed before the autopilot's clock was known
     pipeline_rebuilds: int = 0
     objects_sent: int = 0
     objects_unknown_by_input: int = 0
     faults: Counter[str] = field(default_factory=Counter)
+
+
+# -- outputs ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FrameProcessed:
+    """A frame went through its camera's pipeline (``result`` None: the pipeline raised).
+
+    Its MAVLink output is in :meth:`Companion.data_to_send`; ``clock_offset_us`` (the
+    autopilot-to-companion offset the pipeline used) and ``override`` (why the objects
+    were made unknown, "" if they were not) are what process replay needs."""
+
+    camera_id: int
+    result: FrameResult | None
+    capture_mono_us: int
+    arrival_mono_us: int  # delivered by the camera (on_frame)
+    process_mono_us: int  # processing started
+    waited: bool  # waited for the attitude sample after it
+    clock_offset_us: float
+    override: str
+    threshold: float
+    object_radius_m: float  # TCM_OBJ_RADIUS: what ranges were computed with
+
+
+@dataclass(frozen=True)
+class HealthChecked:
+    """The once-a-second health check ran (the daemon pings the watchdog and shows
+    ``status_line``); ``changes`` are the inputs whose problem changed (``""``: OK again)."""
+
+    now_mono_us: int
+    changes: tuple[tuple[str, str], ...]
+    status_line: str
+    report: HealthReport
+    problems: dict[str, str]  # input -> its problem ("" when healthy)
+
+
+@dataclass(frozen=True)
+class ParamsChanged:
+    """A ground station set one of our parameters (the driver persists and logs it)."""
+
+    name: str
+    value: float
+    now_mono_us: int
+
+
+Output = FrameProcessed | HealthChecked | ParamsChanged
+
+
+# -- internals --------------------------------------------------------------------------------
+@dataclass
+class _Slot:
+    """The newest delivered frame of a camera, not yet processed."""
+
+    image: np.ndarray
+    capture_mono_us: int
+    arrival_mono_us: int
+    waited: bool = False
 
 
 @dataclass
@@ -121,45 +212,53 @@ class _Camera:
     name: str
     model: CameraModel
     pipeline: Pipeline
+    slot: _Slot | None = None
     last_objects: tuple[ObjectResult, ...] = ()
-    last_t_us: int | None = None
+    last_capture_mono_us: int | None = None
     consecutive_errors: int = 0
 
 
 class TimesyncClock(ClockSync):
-    """The pipeline's autopilot-to-companion clock, on TIMESYNC while it is fresh.
+    """The pipeline's autopilot-boot-to-companion-monotonic clock, on TIMESYNC while fresh.
 
     :class:`~tcm_companion.core.telemetry.ClockSync` fits the lower envelope of
-    ``receive time - boot time`` of the telemetry, which leaves the link's smallest
-    one-way latency in the offset (a fraction of a ms on UDP; on a USB serial adapter
-    with its latency timer, ms). TIMESYNC measures the offset with the round trip and
-    halves it, which removes that bias. This clock uses TIMESYNC's offset when the
-    endpoint has a fresh one that agrees with the telemetry fit to within
+    ``receive time (_mono_us) - boot time (_boot_us)`` of the telemetry, which leaves the
+    link's smallest one-way latency in the offset (a fraction of a ms on UDP; on a USB
+    serial adapter with its latency timer, ms). TIMESYNC measures the offset with the
+    round trip and halves it, which removes that bias. This clock uses TIMESYNC's offset
+    when the endpoint has a fresh one that agrees with the telemetry fit to within
     ``agree_us`` (so an autopilot reboot, seen first by one of them, never mixes two boot
-    clocks), and the telemetry fit otherwise.
+    clocks), and the telemetry fit otherwise. Process replay forces the offset the live
+    pipeline used (:meth:`forced`).
     """
 
-    def __init__(
-        self, endpoint: CompanionEndpoint, max_age_us: int = 10_000_000, agree_us: int = 50_000
-    ) -> None:
+    def __init__(self, endpoint: CompanionEndpoint, agree_us: int = 50_000) -> None:
         super().__init__()
         self.endpoint = endpoint
-        self.max_age_us = max_age_us
         self.agree_us = agree_us
-        self._last_recv_us = 0
+        self._last_recv_mono_us = 0
+        self._forced_us: float | None = None
         self.used_timesync = False
 
     def observe(self, boot_us: int, recv_us: int) -> None:
         super().observe(boot_us, recv_us)
-        self._last_recv_us = max(self._last_recv_us, int(recv_us))
+        self._last_recv_mono_us = max(self._last_recv_mono_us, int(recv_us))
+
+    def force(self, offset_us: float | None) -> None:
+        """Use ``offset_us`` (µs, companion monotonic minus autopilot boot) until
+        ``force(None)``; a non-finite value forces nothing."""
+        self._forced_us = (
+            float(offset_us) if offset_us is not None and math.isfinite(offset_us) else None
+        )
 
     @property
     def offset_us(self) -> float:
+        if self._forced_us is not None:
+            return self._forced_us
         fit = super().offset_us
         ts = self.endpoint.timesync
         if (
-            ts.synced
-            and ts.age_us(self._last_recv_us) < self.max_age_us
+            ts.fresh(self._last_recv_mono_us)
             and math.isfinite(fit)
             and abs(ts.offset_us - fit) < self.agree_us
         ):
@@ -184,30 +283,38 @@ def mark_unknown(result: FrameResult, reason: str) -> FrameResult:
 
 
 class Companion:
-    """The service's decisions, on an injected clock (µs, companion monotonic)."""
+    """The service's decisions; every time is µs on the companion monotonic clock."""
 
     def __init__(
         self,
         cameras: Sequence[CameraModel],
         pipeline_config: PipelineConfig,
         endpoint: CompanionEndpoint,
-        now_us: int,
+        now_mono_us: int,
         config: DaemonConfig = DaemonConfig(),
         camera_names: Sequence[str] | None = None,
+        *,
+        pipeline_timer: Callable[[], float] | None = None,
     ) -> None:
+        """``pipeline_timer`` is what the pipelines time their stages with (seconds;
+        default ``time.perf_counter``); the virtual-time SITL passes its own so that
+        nothing it records depends on the machine's speed."""
         if not cameras:
             raise ValueError("at least one camera is needed")
         self.config = config
         self.endpoint = endpoint
         self.base_pipeline_config = pipeline_config
         self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+        self._timer_kw: dict[str, Callable[[], float]] = (
+            {"timer": pipeline_timer} if pipeline_timer is not None else {}
+        )
         names = list(camera_names) if camera_names else [f"camera{i}" for i in range(len(cameras))]
         # One telemetry buffer for every camera: attitude at each frame's capture time
         # through the TIMESYNC mapping, one clock fit.
-        self.telemetry = TelemetryBuffer(clock=TimesyncClock(endpoint))
+        self.clock = TimesyncClock(endpoint)
+        self.telemetry = TelemetryBuffer(clock=self.clock)
         self.cameras = [
-            _Camera(i, names[i], cam, Pipeline(cam, self.pipeline_config, telemetry=self.telemetry))
-            for i, cam in enumerate(cameras)
+            _Camera(i, names[i], cam, self._new_pipeline(cam)) for i, cam in enumerate(cameras)
         ]
         specs = [InputSpec(c.name, 25.0, config.camera_timeout_us) for c in self.cameras]
         ecfg = endpoint.config
@@ -215,161 +322,346 @@ class Companion:
         specs.append(
             InputSpec("position", ecfg.position_rate_hz, config.position_timeout_us, required=False)
         )
-        self.inputs = Inputs(specs, now_us)
+        self.inputs = Inputs(specs, now_mono_us)
         self.stats = CompanionStats()
         self.latencies_ms: deque[float] = deque(maxlen=config.latency_window)
-        self._frame_times: deque[int] = deque(maxlen=64)
+        self._frame_times_mono_us: deque[int] = deque(maxlen=64)
         self._last_translation: TranslationEstimate | None = None
-        self._last_drop_us: int | None = None
+        self._last_drop_mono_us: int | None = None
+        self._next_health_mono_us = now_mono_us + config.health_interval_us
         self.last_override = ""  # why the last processed frame's objects were made unknown
-        self.log_state = d.TCM_LOG_STATE_OFF  # the flight log's state, set by the daemon
+        # The flight log's state (set_log_state), reported in the health message.
+        self.log_state = d.TCM_LOG_STATE_OFF
+        self._log_behind = 0  # items the log has lost so far (frames and messages)
+        self._log_frames_lost = 0
+        self._log_behind_reported = 0
 
-    # -- inputs ---------------------------------------------------------------------------
-    def handle_events(self, events: Sequence[Event], now_us: int) -> None:
-        """Events of the endpoint (telemetry, parameters, autopilot state)."""
+    def _new_pipeline(self, model: CameraModel) -> Pipeline:
+        return Pipeline(model, self.pipeline_config, telemetry=self.telemetry, **self._timer_kw)
+
+    # -- inputs -----------------------------------------------------------------------------
+    def on_frame(
+        self, camera_id: int, image: np.ndarray, capture_mono_us: int, now_mono_us: int
+    ) -> None:
+        """Camera ``camera_id`` delivered a frame captured at ``capture_mono_us``.
+
+        It takes the camera's slot; a frame still waiting there is dropped (counted).
+        """
+        cam = self.cameras[camera_id]
+        self.inputs.update(cam.name, now_mono_us, True)
+        if cam.slot is not None:
+            self._drop(now_mono_us)  # the older frame is stale: never queue it
+        # A frame the attitude does not cover yet waits (bounded) for the next sample.
+        waits = self.frame_deadline_us(camera_id, capture_mono_us) is not None
+        cam.slot = _Slot(image, int(capture_mono_us), int(now_mono_us), waits)
+
+    def receive_data(self, data: bytes, now_mono_us: int) -> list[Output]:
+        """Bytes from the autopilot link (any chunking)."""
+        return self.on_events(self.endpoint.receive_data(data, now_mono_us), now_mono_us)
+
+    def on_events(self, events: Sequence[Event], now_mono_us: int) -> list[Output]:
+        """Events of the endpoint (telemetry, parameters, the autopilot's state)."""
+        out: list[Output] = []
         for ev in events:
             if isinstance(ev, TelemetryReceived):
                 s = ev.sample
                 self.telemetry.add(s)
                 if isinstance(s, AttitudeSample):
-                    self.inputs.update("attitude", now_us, True)
+                    self.inputs.update("attitude", now_mono_us, True)
                 elif isinstance(s, PositionSample):
-                    self.inputs.update("position", now_us, True)
+                    self.inputs.update("position", now_mono_us, True)
             elif isinstance(ev, TelemetryRejected):
-                self.inputs.update(ev.kind, now_us, False)
+                self.inputs.update(ev.kind, now_mono_us, False)
                 self.stats.faults[f"{ev.kind} rejected"] += 1
             elif isinstance(ev, ParamChanged):
-                self._apply_params(now_us)
+                self._apply_params(now_mono_us)
+                out.append(ParamsChanged(ev.name, ev.value, now_mono_us))
             elif isinstance(ev, AutopilotLost):
                 self.stats.faults["autopilot lost"] += 1
-                self.endpoint.statustext(d.MAV_SEVERITY_WARNING, "TCM: autopilot link lost", now_us)
+                self.endpoint.statustext(
+                    d.MAV_SEVERITY_WARNING, "TCM: autopilot link lost", now_mono_us
+                )
             elif isinstance(ev, AutopilotFound):
                 self.endpoint.statustext(
-                    d.MAV_SEVERITY_INFO, f"TCM: autopilot {ev.system_id} found", now_us
+                    d.MAV_SEVERITY_INFO, f"TCM: autopilot {ev.system_id} found", now_mono_us
                 )
             elif isinstance(ev, AutopilotRebooted):
                 self.stats.faults["autopilot reboot"] += 1
+        return out
 
-    def _apply_params(self, now_us: int) -> None:
+    def set_log_state(self, state: int, frames_lost: int, messages_lost: int) -> None:
+        """The flight log's ``TCM_LOG_STATE`` and how many frames and other messages it
+        has lost so far on a full queue. Call before :meth:`process_due` when
+        :meth:`health_due`: the health check reports them."""
+        self.log_state = int(state)
+        self._log_frames_lost = int(frames_lost)
+        self._log_behind = int(frames_lost) + int(messages_lost)
+
+    def report(self, severity: int, text: str, now_mono_us: int) -> None:
+        """Tell the ground station ``text`` (a STATUSTEXT, rate-limited per text): for
+        the daemon's own components, e.g. the flight log's writer."""
+        self.endpoint.statustext(severity, text, now_mono_us)
+
+    # -- time ------------------------------------------------------------------------------
+    def next_deadline_us(self) -> int:
+        """When :meth:`process_due` has work next (companion monotonic µs; a time in
+        the past means now): the endpoint's timers, the health check, a ready frame, or
+        the end of a frame's wait for the attitude."""
+        due = min(self.endpoint.next_deadline_us(), self._next_health_mono_us)
+        for cam in self.cameras:
+            if cam.slot is not None:
+                due = min(due, self._slot_due_us(cam.slot))
+        return due
+
+    def health_due(self, now_mono_us: int) -> bool:
+        """Whether the next :meth:`process_due` at ``now_mono_us`` runs the health check."""
+        return now_mono_us >= self._next_health_mono_us
+
+    def process_due(self, now_mono_us: int) -> list[Output]:
+        """Run what is due at ``now_mono_us``: the endpoint's timers, the health check,
+        then at most one ready frame (the oldest capture). Then send
+        :meth:`data_to_send`; call again while :meth:`next_deadline_us` has passed."""
+        out = self.on_events(self.endpoint.poll(now_mono_us), now_mono_us)
+        if self.health_due(now_mono_us):
+            out.append(self._health_check(now_mono_us))
+            nxt = self._next_health_mono_us + self.config.health_interval_us
+            # Absolute deadlines; after a stall, skip rather than burst.
+            if nxt <= now_mono_us:
+                nxt = now_mono_us + self.config.health_interval_us
+            self._next_health_mono_us = nxt
+        ready = [
+            c
+            for c in self.cameras
+            if c.slot is not None and self._slot_due_us(c.slot) <= now_mono_us
+        ]
+        if ready:
+            cam = min(ready, key=lambda c: (c.slot.capture_mono_us if c.slot else 0, c.camera_id))
+            out.append(self._process(cam, now_mono_us))
+        return out
+
+    def data_to_send(self) -> bytes:
+        """The MAVLink bytes queued for the autopilot since the last call."""
+        return self.endpoint.data_to_send()
+
+    def frame_sent(self, frame: FrameProcessed, sent_mono_us: int) -> None:
+        """``frame``'s output was written to the link at ``sent_mono_us``."""
+        if frame.result is not None:
+            self.latencies_ms.append((sent_mono_us - frame.capture_mono_us) / 1000.0)
+
+    def discard_pending(self, now_mono_us: int) -> int:
+        """At stop: frames still in their slots are dropped (counted); how many."""
+        n = 0
+        for cam in self.cameras:
+            if cam.slot is not None:
+                cam.slot = None
+                self._drop(now_mono_us)
+                n += 1
+        return n
+
+    # -- frames ----------------------------------------------------------------------------
+    def frame_deadline_us(self, camera_id: int, capture_mono_us: int) -> int | None:
+        """When a frame of ``camera_id`` captured at ``capture_mono_us`` may be processed.
+
+        ``None``: now (the attitude covers it, or there is no attitude to wait for).
+        Otherwise the time to wait until, unless a new attitude sample arrives first.
+        """
+        newest = self.telemetry.latest_attitude_time_us()
+        if newest is None:
+            return None  # no attitude at all: waiting would not help
+        if capture_mono_us - newest <= self.config.attitude_lead_max_us:
+            return None
+        return capture_mono_us + self.config.attitude_wait_max_us
+
+    def _slot_due_us(self, slot: _Slot) -> int:
+        deadline = self.frame_deadline_us(0, slot.capture_mono_us)
+        return slot.arrival_mono_us if deadline is None else deadline
+
+    def _drop(self, now_mono_us: int) -> None:
+        self.stats.frames_dropped += 1
+        self._last_drop_mono_us = now_mono_us
+
+    def _step(
+        self, cam: _Camera, image: np.ndarray, capture_mono_us: int, now_mono_us: int
+    ) -> FrameResult | None:
+        """The pipeline on one frame; an exception costs this frame only (None)."""
+        try:
+            result = cam.pipeline.step(image, capture_mono_us)
+        except Exception as exc:  # one bad frame must not stop the service
+            self.stats.frames_failed += 1
+            self.stats.faults["pipeline exception"] += 1
+            cam.consecutive_errors += 1
+            log.exception("pipeline failed on %s frame at %d us", cam.name, capture_mono_us)
+            self.endpoint.statustext(
+                d.MAV_SEVERITY_ERROR, f"TCM: pipeline error {type(exc).__name__}", now_mono_us
+            )
+            if cam.consecutive_errors >= self.config.rebuild_after_errors:
+                self._rebuild(cam)
+                self.endpoint.statustext(
+                    d.MAV_SEVERITY_WARNING, "TCM: pipeline restarted", now_mono_us
+                )
+            return None
+        cam.consecutive_errors = 0
+        return result
+
+    def _process(self, cam: _Camera, now_mono_us: int) -> FrameProcessed:
+        slot = cam.slot
+        assert slot is not None
+        cam.slot = None
+        if slot.waited:
+            self.stats.frames_waited += 1
+        result: FrameResult | None = self._step(cam, slot.image, slot.capture_mono_us, now_mono_us)
+        offset = self.clock_offset_us()
+        self.last_override = ""
+        if result is not None:
+            reason = self._blocking_input(now_mono_us)
+            if reason and result.objects:
+                result = mark_unknown(result, reason)
+                self.last_override = reason
+                self.stats.objects_unknown_by_input += len(result.objects)
+            cam.last_objects = result.objects
+            cam.last_capture_mono_us = slot.capture_mono_us
+            self.stats.frames_processed += 1
+            if not self.endpoint.has_time_base(now_mono_us):
+                # Neither TIMESYNC nor the telemetry has given us the autopilot's boot time
+                # yet: a time_boot_ms of 0 would read as ancient to the autopilot, and
+                # nothing is decided without its attitude anyway. Keep quiet until it has.
+                self.stats.frames_without_time_base += 1
+            else:
+                self.endpoint.send_frame(result, now_mono_us, cam.camera_id)
+                self.stats.objects_sent += len(result.objects)
+                self._frame_times_mono_us.append(now_mono_us)
+                if result.translation is not None:
+                    self._last_translation = result.translation
+        return FrameProcessed(
+            cam.camera_id,
+            result,
+            slot.capture_mono_us,
+            slot.arrival_mono_us,
+            now_mono_us,
+            slot.waited,
+            offset,
+            self.last_override,
+            self.threshold(),
+            float(self.endpoint.params.values["TCM_OBJ_RADIUS"]),
+        )
+
+    def replay_frame(
+        self,
+        camera_id: int,
+        image: np.ndarray,
+        capture_mono_us: int,
+        process_mono_us: int,
+        *,
+        clock_offset_us: float | None,
+        override: str,
+    ) -> FrameResult | None:
+        """Process replay (:mod:`tcm_companion.replay_log`): run camera ``camera_id``'s
+        pipeline on a logged frame as the daemon did when it processed it at
+        ``process_mono_us`` — with the clock offset its pipeline used then and the
+        input-health override it applied (logged, because replay does not re-create the
+        inputs' arrival times). Nothing is sent."""
+        cam = self.cameras[camera_id]
+        self.clock.force(clock_offset_us)
+        try:
+            result = self._step(cam, image, capture_mono_us, process_mono_us)
+        finally:
+            self.clock.force(None)
+        if result is not None and override:
+            result = mark_unknown(result, override)
+        return result
+
+    def _apply_params(self, now_mono_us: int) -> None:
         new = config_with_params(self.base_pipeline_config, self.endpoint.params.values)
         if new == self.pipeline_config:
             return  # an output enable or alarm level: nothing in the pipeline changes
         self.pipeline_config = new
         for cam in self.cameras:
             self._rebuild(cam)
-        self.endpoint.statustext(d.MAV_SEVERITY_INFO, "TCM: parameters applied", now_us)
+        self.endpoint.statustext(d.MAV_SEVERITY_INFO, "TCM: parameters applied", now_mono_us)
 
     def _rebuild(self, cam: _Camera) -> None:
         # The shared telemetry keeps the attitude history and clock fit.
-        cam.pipeline = Pipeline(cam.model, self.pipeline_config, telemetry=self.telemetry)
+        cam.pipeline = Pipeline(
+            cam.model, self.pipeline_config, telemetry=self.telemetry, **self._timer_kw
+        )
         cam.consecutive_errors = 0
         self.stats.pipeline_rebuilds += 1
 
-    # -- frames ---------------------------------------------------------------------------
-    def frame_deadline_us(self, camera_id: int, t_capture_us: int) -> int | None:
-        """When a frame captured at ``t_capture_us`` should be processed.
+    def clock_offset_us(self) -> float:
+        """The autopilot-boot-to-companion-monotonic offset (µs) the pipelines use now."""
+        return float(self.clock.offset_us)
 
-        ``None``: now (the attitude covers it, or nothing will come). Otherwise the
-        companion time to wait until, unless a new attitude sample arrives first.
-        """
-        newest = self.telemetry.latest_attitude_time_us()
-        if newest is None:
-            return None  # no attitude at all: waiting would not help
-        if t_capture_us - newest <= self.config.attitude_lead_max_us:
-            return None
-        return t_capture_us + self.config.attitude_wait_max_us
-
-    def note_frame_arrival(self, camera_id: int, now_us: int, valid: bool = True) -> None:
-        """A camera delivered a frame (before it is processed or dropped)."""
-        self.inputs.update(self.cameras[camera_id].name, now_us, valid)
-
-    def process(
-        self, camera_id: int, image: np.ndarray, t_capture_us: int, now_us: int
-    ) -> FrameResult | None:
-        """Run the pipeline on one frame and queue its outputs on the endpoint."""
-        cam = self.cameras[camera_id]
-        try:
-            result = cam.pipeline.step(image, t_capture_us)
-        except Exception as exc:  # one bad frame must not stop the service
-            self.stats.frames_failed += 1
-            self.stats.faults["pipeline exception"] += 1
-            cam.consecutive_errors += 1
-            log.exception("pipeline failed on %s frame at %d us", cam.name, t_capture_us)
-            self.endpoint.statustext(
-                d.MAV_SEVERITY_ERROR, f"TCM: pipeline error {type(exc).__name__}", now_us
-            )
-            if cam.consecutive_errors >= self.config.rebuild_after_errors:
-                self._rebuild(cam)
-                self.endpoint.statustext(d.MAV_SEVERITY_WARNING, "TCM: pipeline restarted", now_us)
-            return None
-        cam.consecutive_errors = 0
-        reason = self._blocking_input(now_us)
-        self.last_override = ""
-        if reason and result.objects:
-            result = mark_unknown(result, reason)
-            self.last_override = reason
-            self.stats.objects_unknown_by_input += len(result.objects)
-        cam.last_objects = result.objects
-        cam.last_t_us = t_capture_us
-        if not self.endpoint.has_time_base(now_us):
-            # Neither TIMESYNC nor the telemetry has given us the autopilot's boot time
-            # yet: a time_boot_ms of 0 would read as ancient to the autopilot, and
-            # nothing is decided without its attitude anyway. Keep quiet until it has.
-            self.stats.frames_without_time_base += 1
-            self.stats.frames_processed += 1
-            return result
-        self.endpoint.send_frame(result, now_us, camera_id)
-        self.stats.frames_processed += 1
-        self.stats.objects_sent += len(result.objects)
-        self._frame_times.append(now_us)
-        if result.translation is not None:
-            self._last_translation = result.translation
-        return result
-
-    def clock_offset_us(self, camera_id: int) -> float:
-        """The autopilot-to-companion offset (µs) the camera's pipeline uses now."""
-        return float(self.telemetry.clock.offset_us)
+    def endpoint_stats(self) -> dict[str, int]:
+        """The MAVLink endpoint's counters (malformed input, suppressed texts, ...)."""
+        return dict(self.endpoint.stats)
 
     def threshold(self) -> float:
         return float(self.pipeline_config.classifier.tcm_threshold)
 
-    def record_latency(self, latency_us: int) -> None:
-        """Capture → handed to the link, for the health message."""
-        self.latencies_ms.append(latency_us / 1000.0)
+    def pipeline(self, camera_id: int) -> Pipeline:
+        """Camera ``camera_id``'s pipeline now (read-only use: tests, tools)."""
+        return self.cameras[camera_id].pipeline
 
-    def _blocking_input(self, now_us: int) -> str:
-        att = self.inputs.monitors["attitude"].status(now_us)
+    def last_objects(self, camera_id: int) -> tuple[ObjectResult, ...]:
+        """What camera ``camera_id``'s last processed frame reported (and was sent)."""
+        return self.cameras[camera_id].last_objects
+
+    def _blocking_input(self, now_mono_us: int) -> str:
+        att = self.inputs.monitors["attitude"].status(now_mono_us)
         if not att.healthy:
             return att.problem
         if self.pipeline_config.egomotion_source == "autopilot":
-            pos = self.inputs.monitors["position"].status(now_us)
+            pos = self.inputs.monitors["position"].status(now_mono_us)
             if not pos.healthy:
                 return pos.problem
         return ""
 
-    # -- once a second --------------------------------------------------------------------
-    def tick(self, now_us: int) -> list[tuple[str, str]]:
-        """Health bookkeeping; returns the input changes ``(input, problem)`` it reported."""
-        changes = self.inputs.changes(now_us)
+    # -- once a second ---------------------------------------------------------------------
+    def _health_check(self, now_mono_us: int) -> HealthChecked:
+        if self._log_behind > self._log_behind_reported:
+            # The disk (or the writer) cannot keep up: say so, once in a while.
+            frames = self._log_frames_lost
+            self.endpoint.statustext(
+                d.MAV_SEVERITY_WARNING,
+                f"TCM: log behind, {frames} frames, {self._log_behind - frames} msgs lost",
+                now_mono_us,
+            )
+            self._log_behind_reported = self._log_behind
+        changes = self.tick(now_mono_us)
+        st = self.inputs.status(now_mono_us)
+        return HealthChecked(
+            now_mono_us,
+            tuple(changes),
+            self.status_line(now_mono_us),
+            self.health_report(now_mono_us),
+            {k: v.problem for k, v in st.items()},
+        )
+
+    def tick(self, now_mono_us: int) -> list[tuple[str, str]]:
+        """The input part of the health check (run by :meth:`process_due` once a
+        second); returns the input changes ``(input, problem)`` it reported."""
+        changes = self.inputs.changes(now_mono_us)
         for name, problem in changes:
             if problem:
                 self.stats.faults[problem.split(" (")[0]] += 1
-                self.endpoint.statustext(d.MAV_SEVERITY_WARNING, f"TCM: {problem}", now_us)
+                self.endpoint.statustext(d.MAV_SEVERITY_WARNING, f"TCM: {problem}", now_mono_us)
                 cam = next((c for c in self.cameras if c.name == name), None)
                 if cam is not None and cam.last_objects:
                     # Tell the autopilot once that what it last heard is no longer known.
                     # Stamped now: "as of now these are unknown" (the last frame is too
                     # old for the autopilot to accept, which is the point of saying it).
-                    stale = FrameResult(-1, now_us, cam.last_objects, False, None, {})
-                    self.endpoint.send_frame(mark_unknown(stale, problem), now_us, cam.camera_id)
+                    stale = FrameResult(-1, now_mono_us, cam.last_objects, False, None, {})
+                    self.endpoint.send_frame(
+                        mark_unknown(stale, problem), now_mono_us, cam.camera_id
+                    )
                     cam.last_objects = ()
             else:
-                self.endpoint.statustext(d.MAV_SEVERITY_INFO, f"TCM: {name} OK", now_us)
-        self.endpoint.set_health(self.health_report(now_us))
+                self.endpoint.statustext(d.MAV_SEVERITY_INFO, f"TCM: {name} OK", now_mono_us)
+        self.endpoint.set_health(self.health_report(now_mono_us))
         return changes
 
-    def health_flags(self, now_us: int) -> int:
-        st = self.inputs.status(now_us)
+    def health_flags(self, now_mono_us: int) -> int:
+        st = self.inputs.status(now_mono_us)
         flags = 0
         if any(not st[c.name].healthy for c in self.cameras):
             flags |= d.TCM_HEALTH_CAMERA_LOST
@@ -378,27 +670,25 @@ class Companion:
         if not st["position"].healthy:
             flags |= d.TCM_HEALTH_POSITION_STALE
         ts = self.endpoint.timesync
-        if not ts.synced or ts.age_us(now_us) > 5_000_000:
+        if not ts.fresh(now_mono_us):  # one rule for "fresh": timesync.FRESH_US
             flags |= d.TCM_HEALTH_TIMESYNC_LOST
-        if self._last_drop_us is not None and now_us - self._last_drop_us < 2_000_000:
+        if (
+            self._last_drop_mono_us is not None
+            and now_mono_us - self._last_drop_mono_us < 2_000_000
+        ):
             flags |= d.TCM_HEALTH_OVERLOADED
         if self.log_state == d.TCM_LOG_STATE_FAULT:
             flags |= d.TCM_HEALTH_LOG_FAULT
         return flags
 
-    def note_drop(self, now_us: int) -> None:
-        """A frame was superseded by a newer one before it could be processed."""
-        self.stats.frames_dropped += 1
-        self._last_drop_us = now_us
-
-    def frame_rate_hz(self, now_us: int) -> float:
-        recent = [t for t in self._frame_times if now_us - t <= 2_000_000]
+    def frame_rate_hz(self, now_mono_us: int) -> float:
+        recent = [t for t in self._frame_times_mono_us if now_mono_us - t <= 2_000_000]
         if len(recent) < 2:
             return 0.0
         span = recent[-1] - recent[0]
         return (len(recent) - 1) / (span / 1e6) if span > 0 else 0.0
 
-    def health_report(self, now_us: int) -> HealthReport:
+    def health_report(self, now_mono_us: int) -> HealthReport:
         tr = self._last_translation
         quality = 0
         if tr is not None and tr.valid and math.isfinite(tr.sigma_rad):
@@ -406,14 +696,35 @@ class Companion:
         lat = sorted(self.latencies_ms)
         p50 = lat[len(lat) // 2] if lat else 0.0
         return HealthReport(
-            frame_rate_hz=self.frame_rate_hz(now_us),
+            frame_rate_hz=self.frame_rate_hz(now_mono_us),
             latency_ms=p50,
             frames_dropped=self.stats.frames_dropped,
             egomotion_source=_EGO_SOURCE.get(
                 tr.source if tr is not None else "", d.TCM_EGOMOTION_SOURCE_NONE
             ),
             egomotion_quality_pct=quality,
-            health_flags=self.health_flags(now_us),
+            health_flags=self.health_flags(now_mono_us),
             objects=sum(len(c.last_objects) for c in self.cameras),
             log_state=self.log_state,
+        )
+
+    def status_line(self, now_mono_us: int) -> str:
+        """One line: objects and states, nearest TTC, fps, latency, drops, problems."""
+        objs = [o for c in self.cameras for o in c.last_objects]
+        states: dict[str, int] = {}
+        for o in objs:
+            states[o.state] = states.get(o.state, 0) + 1
+        ttcs = [o.ttc_s for o in objs if o.ttc_s == o.ttc_s]
+        st = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "none"
+        lat = sorted(self.latencies_ms)
+        p99 = lat[min(len(lat) - 1, int(0.99 * len(lat)))] if lat else float("nan")
+        p50 = lat[len(lat) // 2] if lat else float("nan")
+        problems = [s.problem for s in self.inputs.status(now_mono_us).values() if s.problem]
+        head = f"objects {len(objs)} ({st}) | "
+        if ttcs:
+            head += f"TTC {min(ttcs):.1f}s | "
+        return head + (
+            f"{self.frame_rate_hz(now_mono_us):4.1f} fps | latency p50 {p50:.1f} p99 {p99:.1f} ms"
+            f" | drops {self.stats.frames_dropped} | "
+            + ("; ".join(problems) if problems else "inputs OK")
         )

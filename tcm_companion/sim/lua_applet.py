@@ -12,7 +12,8 @@ runs the applet in an embedded Lua 5.4 (``lupa``) with the bindings it uses, as
   (:meth:`MockAutopilot.start_brake`); other modes are refused (the mock flies only its
   scenario and BRAKE); ``vehicle:get_mode()`` is BRAKE while braking, else GUIDED
   (what the mock's HEARTBEAT says) unless :attr:`mode` is set;
-- ``gcs:send_text`` becomes the mock's STATUSTEXT and is recorded in :attr:`texts`;
+- ``gcs:send_text`` becomes the mock's STATUSTEXT (:meth:`MockAutopilot.statustext`) and
+  is recorded in :attr:`texts`;
 - ``arming:is_armed()`` / ``vehicle:get_likely_flying()`` follow :attr:`armed` /
   :attr:`flying` (the mock is always airborne: True by default);
 - ``millis()`` is the mock's boot clock; parameters live in :attr:`params`
@@ -29,14 +30,12 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from .mock_autopilot import MockAutopilot, MockEvent
+from .mock_autopilot import COPTER_MODE_BRAKE, COPTER_MODE_GUIDED, MockAutopilot, MockEvent
 
 APPLET_PATH = Path(__file__).resolve().parents[2] / "tools" / "ardupilot" / "tcm_avoid.lua"
 # param, Parameter and uint32_t_ud, faked once for both hosts (harness.lua loads it too).
 FAKE_PARAMS_PATH = APPLET_PATH.with_name("fake_params.lua")
 SCRIPT_IDS = (45100, 45101)
-COPTER_MODE_BRAKE = 17
-COPTER_MODE_GUIDED = 4
 _MSG_T_PAYLOAD = 264
 _QUEUE_MAX = 20
 
@@ -89,8 +88,14 @@ class _Host:
     def __init__(self, owner: LuaAppletAutopilot) -> None:
         self._o = owner
         self.params: Any = None  # a Lua table, set once the runtime exists
-        self.armed = True
-        self.flying = True
+
+    @property
+    def armed(self) -> bool:
+        return bool(self._o.armed)
+
+    @property
+    def flying(self) -> bool:
+        return bool(self._o.flying)
 
     def millis(self) -> int:
         return self._o.clock_ms
@@ -113,7 +118,7 @@ class _Host:
     def send_text(self, severity: int, text: Any) -> None:
         s = text.decode() if isinstance(text, bytes) else str(text)
         self._o.texts.append((self._o.clock_ms, int(severity), s))
-        self._o.mock._statustext(int(severity), s)  # the mock's own STATUSTEXT path
+        self._o.mock.statustext(int(severity), s)  # the mock's own STATUSTEXT path
 
     def send_named_float(self, name: Any, value: float) -> None:
         key = name.decode() if isinstance(name, bytes) else str(name)
@@ -129,8 +134,7 @@ class _Host:
         if mode != COPTER_MODE_BRAKE:
             return False
         mock = self._o.mock
-        latest_us = mock.boot_us() - mock.boot_us(0)  # the caller's latest time
-        brake = mock.start_brake(latest_us, -1, float("nan"), text="")
+        brake = mock.start_brake(mock.now_us, -1, float("nan"), text="")
         if brake is not None:
             self._o.events.append(brake)
         return True
@@ -155,6 +159,8 @@ class LuaAppletAutopilot:
         self.mode_requests: list[int] = []
         self.events: list[MockEvent] = []
         self.mode = COPTER_MODE_GUIDED
+        self.armed = True  # arming:is_armed()
+        self.flying = True  # vehicle:get_likely_flying() (the mock is always airborne)
         self.mavlink_init: tuple[int, int] | None = None
         self._rx = bytearray()
         self.clock_ms = self._boot_ms()
@@ -170,22 +176,6 @@ class LuaAppletAutopilot:
             raise RuntimeError(f"cannot load {applet}")
         fn, delay = chunk()
         self._update, self._next_ms = fn, self._boot_ms() + int(delay)
-
-    @property
-    def armed(self) -> bool:
-        return bool(self.host.armed)
-
-    @armed.setter
-    def armed(self, value: bool) -> None:
-        self.host.armed = bool(value)
-
-    @property
-    def flying(self) -> bool:
-        return bool(self.host.flying)
-
-    @flying.setter
-    def flying(self, value: bool) -> None:
-        self.host.flying = bool(value)
 
     def param(self, name: str) -> float | None:
         return self.host.params[name.encode()]
@@ -233,8 +223,8 @@ class LuaAppletAutopilot:
         return events + self.run_until(now_us)
 
     def poll(self, now_us: int) -> list[MockEvent]:
-        self.mock.poll(now_us)
-        return self.run_until(now_us)
+        events = self.mock.poll(now_us)
+        return events + self.run_until(now_us)
 
     def run_until(self, now_us: int) -> list[MockEvent]:
         """Run the applet's updates that fall due up to ``now_us``."""

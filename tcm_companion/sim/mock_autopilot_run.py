@@ -25,6 +25,13 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, Protocol
 
+from ..io.transports import (
+    LinkDown,
+    TransportClosed,
+    TransportError,
+    TransportTimeout,
+    open_transport,
+)
 from .mock_autopilot import (
     BrakeStarted,
     CommandReceived,
@@ -35,31 +42,6 @@ from .mock_autopilot import (
     PeerSeen,
 )
 from .scenarios import SCENARIO_NAMES
-
-try:  # the transports package is the public home of these exceptions
-    from ..io.transports import LinkDown, TransportClosed, TransportError, TransportTimeout
-except ImportError:
-    try:
-        from ..io.transports.errors import (
-            LinkDown,
-            TransportClosed,
-            TransportError,
-            TransportTimeout,
-        )
-    except ImportError:  # transports not installed: stand-ins nobody else raises
-
-        class TransportError(Exception):  # type: ignore[no-redef]
-            """Base of the transport errors (stand-in for tcm_companion.io.transports')."""
-
-        class TransportClosed(TransportError):  # type: ignore[no-redef]
-            """The link is closed (stand-in)."""
-
-        class LinkDown(TransportClosed):  # type: ignore[no-redef]
-            """A reconnecting link is down (stand-in)."""
-
-        class TransportTimeout(TransportError):  # type: ignore[no-redef]
-            """A write did not finish in time (stand-in)."""
-
 
 __all__ = [
     "LinkDown",
@@ -135,8 +117,10 @@ async def run_mock_autopilot(
     """Serve ``transport`` as the mock autopilot until ``stop`` is set or the link closes.
 
     ``clock`` gives ns (monotonic); the mock starts flying at its first reading. Pass
-    ``autopilot`` to run a mock you keep a reference to (``config`` is then unused), and
-    ``on_event`` to see its events. Returns the mock, for its records and stats.
+    ``autopilot`` to run a mock you keep a reference to (``config`` is then unused; a
+    :class:`~.lua_applet.LuaAppletAutopilot` works too), and ``on_event`` to see the
+    events of :meth:`MockAutopilot.receive_data` and :meth:`MockAutopilot.poll`. Returns
+    the mock, for its records and stats.
     """
 
     def now_us() -> int:
@@ -147,12 +131,19 @@ async def run_mock_autopilot(
             config = replace(config, unix_us_at_start=time.time_ns() // 1000)
         autopilot = MockAutopilot(config, now_us())
     ap = autopilot
+
+    def dispatch(events: list[MockEvent]) -> None:
+        for ev in events:
+            _log_event(ev)
+            if on_event is not None:
+                on_event(ev)
+
     stop = stop if stop is not None else asyncio.Event()
     stop_task: asyncio.Task[Any] = asyncio.create_task(stop.wait())
     recv_task: asyncio.Task[Any] | None = None
     try:
         while not stop.is_set():
-            ap.poll(now_us())
+            dispatch(ap.poll(now_us()))
             if not await _flush(transport, ap):
                 log.info("link closed")
                 break
@@ -179,10 +170,7 @@ async def run_mock_autopilot(
                 break
             except TransportTimeout:
                 continue
-            for ev in ap.receive_data(data, now_us()):
-                _log_event(ev)
-                if on_event is not None:
-                    on_event(ev)
+            dispatch(ap.receive_data(data, now_us()))
             # Answers (ACKs, TIMESYNC) go out at once, not at the next timer.
             if not await _flush(transport, ap):
                 log.info("link closed")
@@ -200,8 +188,6 @@ async def serve_mock_autopilot(
     url: str, config: MockAutopilotConfig, stop: asyncio.Event | None = None
 ) -> MockAutopilot:
     """Open the transport ``url``, serve it until ``stop`` or the link ends, close it."""
-    from ..io.transports import open_transport  # imported here: the core needs no IO
-
     # Serial and TCP links reopen after a hang-up (the runner waits out LinkDown).
     transport = open_transport(url, reconnect=True)
     try:

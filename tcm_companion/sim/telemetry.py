@@ -17,21 +17,30 @@ ATTITUDE 50 Hz (Euler angles with a constant per-axis bias and white noise, body
 with noise), LOCAL_POSITION_NED 10 Hz (position and velocity with white noise) and
 GPS_RAW_INT 5 Hz. The noise amplitudes scale with ``noise``; ``noise = 0`` gives exact
 telemetry (latency is physics, not noise, and stays).
+
+:class:`TelemetryNoise` is the noise model, the one the mock autopilot's live telemetry
+uses too (:mod:`.mock_vehicle`).
 """
 
 from __future__ import annotations
 
 import io
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from ..core.frames import FloatArray
 from ..io.tlog import TlogWriter
+from ..mavlink.outputs import EARTH_RADIUS_M  # the flat-earth conversion ADSB_VEHICLE uses
 from .scenarios import VehicleMotion, euler_zyx_rad
 
-EARTH_RADIUS_M = 6_378_137.0
+# ArduCopter flight modes (HEARTBEAT.custom_mode).
+COPTER_MODE_GUIDED = 4
+COPTER_MODE_BRAKE = 17
 
 
 @dataclass(frozen=True)
@@ -57,6 +66,64 @@ class TelemetryConfig:
     origin_lat_deg: float = -27.4975
     origin_lon_deg: float = 153.0137
     origin_alt_m: float = 30.0
+
+
+@dataclass(frozen=True)
+class TelemetryNoise:
+    """The telemetry's noise: a constant per-axis attitude bias (uniform within
+    ±``attitude_bias_max_deg``, drawn once per flight) plus white Gaussian noise on the
+    attitude, the body rates, the local position and velocity and the GPS position, at
+    :class:`TelemetryConfig`'s levels times ``noise``.
+
+    The methods take one sample (shape ``(3,)``) or many (``(n, 3)``) and draw from the
+    generator they are given, attitude before rates and position before velocity.
+    """
+
+    attitude_bias_rad: FloatArray  # (3,) roll, pitch, yaw
+    attitude_sigma_rad: float
+    rate_sigma_rps: float
+    position_sigma_m: float
+    velocity_sigma_mps: float
+    gps_sigma_m: float
+
+    @staticmethod
+    def draw(cfg: TelemetryConfig, noise: float, rng: np.random.Generator) -> TelemetryNoise:
+        """The noise of one flight: draws the attitude bias from ``rng``."""
+        bias = rng.uniform(-1.0, 1.0, 3) * math.radians(cfg.attitude_bias_max_deg) * noise
+        return TelemetryNoise(
+            attitude_bias_rad=bias,
+            attitude_sigma_rad=math.radians(cfg.attitude_noise_deg) * noise,
+            rate_sigma_rps=math.radians(cfg.rate_noise_dps) * noise,
+            position_sigma_m=cfg.position_noise_m * noise,
+            velocity_sigma_mps=cfg.velocity_noise_mps * noise,
+            gps_sigma_m=cfg.gps_noise_m * noise,
+        )
+
+    def attitude(
+        self, euler_rad: FloatArray, rates_rps: FloatArray, rng: np.random.Generator
+    ) -> tuple[FloatArray, FloatArray]:
+        """Measured ``(roll, pitch, yaw)`` (yaw wrapped to (-π, π]) and ``(p, q, r)``."""
+        eul = np.array(euler_rad, dtype=np.float64)
+        eul += self.attitude_bias_rad + rng.normal(0.0, self.attitude_sigma_rad, eul.shape)
+        eul[..., 2] = np.angle(np.exp(1j * eul[..., 2]))
+        rates = np.array(rates_rps, dtype=np.float64)
+        rates += rng.normal(0.0, self.rate_sigma_rps, rates.shape)
+        return eul, rates
+
+    def local_position(
+        self, pos_ned_m: FloatArray, vel_ned_mps: FloatArray, rng: np.random.Generator
+    ) -> tuple[FloatArray, FloatArray]:
+        """Measured LOCAL_POSITION_NED position and velocity."""
+        pos = np.asarray(pos_ned_m, dtype=np.float64)
+        vel = np.asarray(vel_ned_mps, dtype=np.float64)
+        pos = pos + rng.normal(0.0, self.position_sigma_m, pos.shape)
+        vel = vel + rng.normal(0.0, self.velocity_sigma_mps, vel.shape)
+        return pos, vel
+
+    def gps_position(self, pos_ned_m: FloatArray, rng: np.random.Generator) -> FloatArray:
+        """Measured GPS position (local NED, before conversion to latitude/longitude)."""
+        pos = np.asarray(pos_ned_m, dtype=np.float64)
+        return pos + rng.normal(0.0, self.gps_sigma_m, pos.shape)
 
 
 @dataclass(frozen=True)
@@ -135,33 +202,23 @@ def synthesize_tlog(
     if cfg.gps_hz > 0:
         streams.append(("GPS_RAW_INT", _sample_times_ms(cfg.gps_hz, b0, b1, rng, jitter=True)))
 
-    payloads: dict[str, list[dict[str, float | int]]] = {}
-    bias = rng.uniform(-1.0, 1.0, 3) * math.radians(cfg.attitude_bias_max_deg) * noise
+    # Per stream, each message's values in its encoder's argument order (after time_boot_ms).
+    payloads: dict[str, list[tuple[float, ...]]] = {}
+    model = TelemetryNoise.draw(cfg, noise, rng)
     for kind, ms in streams:
         t = clocks.t_s_from_boot_us(ms * 1000)
         if kind == "ATTITUDE":
-            eul = euler_zyx_rad(vehicle.R_ned_from_body(t))
-            eul += bias + rng.normal(0.0, math.radians(cfg.attitude_noise_deg) * noise, eul.shape)
-            eul[:, 2] = np.angle(np.exp(1j * eul[:, 2]))  # wrap yaw to (-π, π]
-            rates = vehicle.body_rates_rps(t)
-            rates += rng.normal(0.0, math.radians(cfg.rate_noise_dps) * noise, rates.shape)
-            payloads[kind] = [
-                {"roll": e[0], "pitch": e[1], "yaw": e[2], "p": r[0], "q": r[1], "r": r[2]}
-                for e, r in zip(eul, rates)
-            ]
+            eul, rates = model.attitude(
+                euler_zyx_rad(vehicle.R_ned_from_body(t)), vehicle.body_rates_rps(t), rng
+            )
+            payloads[kind] = [_floats(e, r) for e, r in zip(eul, rates)]
         elif kind == "LOCAL_POSITION_NED":
-            pos = vehicle.position_ned_m(t) + rng.normal(
-                0.0, cfg.position_noise_m * noise, (t.size, 3)
+            pos, vel = model.local_position(
+                vehicle.position_ned_m(t), vehicle.velocity_ned_mps(t), rng
             )
-            vel = vehicle.velocity_ned_mps(t) + rng.normal(
-                0.0, cfg.velocity_noise_mps * noise, (t.size, 3)
-            )
-            payloads[kind] = [
-                {"x": p[0], "y": p[1], "z": p[2], "vx": v[0], "vy": v[1], "vz": v[2]}
-                for p, v in zip(pos, vel)
-            ]
+            payloads[kind] = [_floats(p, v) for p, v in zip(pos, vel)]
         elif kind == "GPS_RAW_INT":
-            pos = vehicle.position_ned_m(t) + rng.normal(0.0, cfg.gps_noise_m * noise, (t.size, 3))
+            pos = model.gps_position(vehicle.position_ned_m(t), rng)
             vel = vehicle.velocity_ned_mps(t)
             lat0 = math.radians(cfg.origin_lat_deg)
             lat = cfg.origin_lat_deg + np.degrees(pos[:, 0] / EARTH_RADIUS_M)
@@ -169,12 +226,9 @@ def synthesize_tlog(
             alt = cfg.origin_alt_m - pos[:, 2]
             speed = np.hypot(vel[:, 0], vel[:, 1])
             cog = np.degrees(np.arctan2(vel[:, 1], vel[:, 0])) % 360.0
-            payloads[kind] = [
-                {"lat": la, "lon": lo, "alt": al, "vel": sp, "cog": cg}
-                for la, lo, al, sp, cg in zip(lat, lon, alt, speed, cog)
-            ]
+            payloads[kind] = [_floats(row) for row in zip(lat, lon, alt, speed, cog)]
         else:
-            payloads[kind] = [{} for _ in ms]
+            payloads[kind] = [() for _ in ms]
 
     # Send order: by sample time; at equal times heartbeat, attitude, position, GPS.
     order = {"HEARTBEAT": 0, "ATTITUDE": 1, "LOCAL_POSITION_NED": 2, "GPS_RAW_INT": 3}
@@ -197,50 +251,45 @@ def synthesize_tlog(
     return records
 
 
+def _floats(*parts: Iterable[float]) -> tuple[float, ...]:
+    return tuple(float(x) for part in parts for x in part)
+
+
+def copter_heartbeat(mav: Any, custom_mode: int) -> Any:
+    """ArduCopter's HEARTBEAT (armed quadrotor, ``custom_mode`` its flight mode) encoded
+    with ``mav`` (a pymavlink ``MAVLink`` of any dialect)."""
+    return mav.heartbeat_encode(
+        mavlink2.MAV_TYPE_QUADROTOR,
+        mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+        mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+        | mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+        | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+        | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+        custom_mode,
+        mavlink2.MAV_STATE_ACTIVE,
+    )
+
+
 def _encode(
-    mav: mavlink2.MAVLink, kind: str, boot_ms: int, v: dict[str, float | int]
+    mav: mavlink2.MAVLink, kind: str, boot_ms: int, v: tuple[float, ...]
 ) -> mavlink2.MAVLink_message:
     if kind == "HEARTBEAT":
-        return mav.heartbeat_encode(
-            mavlink2.MAV_TYPE_QUADROTOR,
-            mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
-            mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
-            | mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
-            | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
-            | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-            4,  # ArduCopter GUIDED
-            mavlink2.MAV_STATE_ACTIVE,
-        )
+        return copter_heartbeat(mav, COPTER_MODE_GUIDED)
     if kind == "ATTITUDE":
-        return mav.attitude_encode(
-            boot_ms,
-            float(v["roll"]),
-            float(v["pitch"]),
-            float(v["yaw"]),
-            float(v["p"]),
-            float(v["q"]),
-            float(v["r"]),
-        )
+        return mav.attitude_encode(boot_ms, *v)  # roll, pitch, yaw, p, q, r
     if kind == "LOCAL_POSITION_NED":
-        return mav.local_position_ned_encode(
-            boot_ms,
-            float(v["x"]),
-            float(v["y"]),
-            float(v["z"]),
-            float(v["vx"]),
-            float(v["vy"]),
-            float(v["vz"]),
-        )
+        return mav.local_position_ned_encode(boot_ms, *v)  # x, y, z, vx, vy, vz
+    lat, lon, alt, vel, cog = v
     return mav.gps_raw_int_encode(
         boot_ms * 1000,
         3,  # 3D fix
-        round(float(v["lat"]) * 1e7),
-        round(float(v["lon"]) * 1e7),
-        round(float(v["alt"]) * 1000.0),
+        round(lat * 1e7),
+        round(lon * 1e7),
+        round(alt * 1000.0),
         80,
         120,
-        round(float(v["vel"]) * 100.0),
-        round(float(v["cog"]) * 100.0) % 36000,
+        round(vel * 100.0),
+        round(cog * 100.0) % 36000,
         14,
     )
 

@@ -17,6 +17,11 @@ The thread never dies of a source's failure:
 - ``read()`` raises :class:`EndOfStream` → ``ended = True``, state ``"ended"``, the thread
   exits.
 
+The decisions (open, read, accept or reject, reconnect with backoff) are one state
+machine, :class:`ReaderCore`, taking one step per call on a caller's clock; the thread
+runs it in a loop and sleeps its backoffs, and the virtual-time SITL
+(:mod:`tcm_companion.service.sitl_virtual`) steps the same machine on a simulated clock.
+
 Stopping: ``stop()`` sets a flag, calls the source's :meth:`FrameSource.interrupt` (which
 wakes the paced and simulated sources' waits at once) and joins the thread for at most
 ``timeout_s``. It never closes the source from its own thread — OpenCV's
@@ -33,6 +38,7 @@ import dataclasses
 import logging
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,6 +48,203 @@ log = logging.getLogger(__name__)
 
 #: States reported to ``on_state`` (on transitions only).
 STATES = ("open", "lost", "reconnected", "ended", "failed")
+
+
+@dataclass(frozen=True)
+class ReaderStep:
+    """What one :meth:`ReaderCore.step` did: a frame to deliver, a backoff to wait
+    before the next step (s; 0: step again at once), or the end of reading.
+    ``t_image_us``: the capture time of the image read, accepted or rejected."""
+
+    frame: Frame | None = None
+    wait_s: float = 0.0
+    finished: bool = False
+    t_image_us: int | None = None
+
+
+class ReaderCore:
+    """One camera's reading, a step at a time: open (with backoff), read, validate,
+    reconnect — what :class:`CameraReader`'s thread does, without the thread.
+
+    ``step(clock_us, stopping)`` opens the source if it is closed, otherwise reads one
+    image; it blocks only as long as the source's ``open()`` / ``read()`` do.
+    ``clock_us`` stamps an image whose source gives no capture time (right after
+    ``read()`` returned); ``stopping()`` says a stop was asked for (a read that returns
+    after it is discarded, not counted). Stats are read under a lock from any thread.
+    """
+
+    def __init__(
+        self,
+        source: FrameSource,
+        camera_id: int,
+        *,
+        initial_backoff_s: float = 0.1,
+        max_backoff_s: float = 2.0,
+        on_state: Callable[[str, str], None] | None = None,
+    ) -> None:
+        if not (initial_backoff_s > 0 and max_backoff_s >= initial_backoff_s):
+            raise ValueError("need 0 < initial_backoff_s <= max_backoff_s")
+        self.source = source
+        self.camera_id = camera_id
+        self.on_state = on_state
+        self.initial_backoff_s = float(initial_backoff_s)
+        self.max_backoff_s = float(max_backoff_s)
+        self._lock = threading.Lock()
+        self._stats = CameraStats()
+        self._backoff_s = self.initial_backoff_s
+        self._state = "idle"
+        self._last_frame_us: int | None = None
+        self._warned: set[str] = set()
+        self._opened = False
+        self._lost = False  # a loss happened and no open has succeeded since
+
+    @property
+    def stats(self) -> CameraStats:
+        with self._lock:
+            return dataclasses.replace(self._stats)
+
+    @property
+    def last_frame_us(self) -> int | None:
+        return self._last_frame_us
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    def step(self, clock_us: Callable[[], int], stopping: Callable[[], bool]) -> ReaderStep:
+        """Open the source, or read one image from it; see the class docstring."""
+        if not self._opened:
+            return self._open(stopping)
+        src = self.source
+        outcome = ""
+        try:
+            image, t_us = src.read()
+            now_us = clock_us()
+        except EndOfStream:
+            outcome = "stop" if stopping() else "ended"
+        except CameraGone as exc:
+            if stopping():
+                outcome = "stop"
+            else:
+                with self._lock:
+                    self._stats.read_errors += 1
+                log.warning("camera %s: lost (%s)", src.name, exc)
+                outcome = "lost"
+        except Exception as exc:
+            if stopping():
+                outcome = "stop"
+            else:
+                with self._lock:
+                    self._stats.read_errors += 1
+                log.warning(
+                    "camera %s: read() raised %r; treated as lost", src.name, exc, exc_info=True
+                )
+                outcome = "lost"
+        else:
+            if stopping():
+                outcome = "stop"  # read after stop: discarded, not counted
+            else:
+                # The source answers again: the next loss starts the backoff from the start.
+                self._backoff_s = self.initial_backoff_s
+                t_image_us = now_us if t_us is None else int(t_us)
+                return ReaderStep(self._accept(image, t_image_us), t_image_us=t_image_us)
+        self.close()
+        if outcome == "stop":
+            return ReaderStep(finished=True)
+        if outcome == "ended" or not src.live:
+            with self._lock:
+                self._stats.ended = True
+            log.info("camera %s: ended", src.name)
+            self._set_state("ended")
+            return ReaderStep(finished=True)
+        self._lost = True
+        self._set_state("lost")
+        return ReaderStep(wait_s=self._back_off())
+
+    def _open(self, stopping: Callable[[], bool]) -> ReaderStep:
+        src = self.source
+        try:
+            src.open()
+        except Exception as exc:
+            with self._lock:
+                self._stats.open_failures += 1
+            log.warning(
+                "camera %s: open failed (%s); retrying in %.1f s", src.name, exc, self._backoff_s
+            )
+            self._set_state("failed")
+            self.close()
+            return ReaderStep(wait_s=self._back_off())
+        self._opened = True
+        if stopping():
+            return ReaderStep(finished=True)
+        if self._lost:
+            with self._lock:
+                self._stats.reconnects += 1
+            log.info("camera %s: reconnected", src.name)
+            self._set_state("reconnected")
+            self._lost = False
+        else:
+            log.info("camera %s: open", src.name)
+            self._set_state("open")
+        return ReaderStep()
+
+    def _back_off(self) -> float:
+        """The current backoff (s), doubled for next time up to ``max_backoff_s``."""
+        wait = self._backoff_s
+        self._backoff_s = min(self._backoff_s * 2.0, self.max_backoff_s)
+        return wait
+
+    def _accept(self, image: np.ndarray | None, t_us: int) -> Frame | None:
+        src = self.source
+        reason = _reject_reason(image, src.width, src.height)
+        if reason is not None:
+            with self._lock:
+                self._stats.captured += 1
+                if reason == "empty":
+                    self._stats.rejected_empty += 1
+                else:
+                    self._stats.rejected_size += 1
+            if reason not in self._warned:  # once per kind: the counters tell the rest
+                self._warned.add(reason)
+                log.warning(
+                    "camera %s: rejected %s image (%s); expected %dx%dx3 uint8",
+                    src.name,
+                    reason,
+                    _describe(image),
+                    src.width,
+                    src.height,
+                )
+            return None
+        assert image is not None
+        retimed = self._last_frame_us is not None and t_us <= self._last_frame_us
+        if retimed:
+            assert self._last_frame_us is not None
+            t_us = self._last_frame_us + 1
+        with self._lock:
+            seq = self._stats.delivered
+            self._stats.captured += 1
+            self._stats.delivered += 1
+            self._stats.retimed += int(retimed)
+        self._last_frame_us = t_us
+        return Frame(self.camera_id, seq, t_us, image)
+
+    def close(self) -> None:
+        """Close the source (safe to call twice)."""
+        self._opened = False
+        try:
+            self.source.close()
+        except Exception:
+            log.exception("camera %s: close() failed", self.source.name)
+
+    def _set_state(self, state: str) -> None:
+        if state == self._state:
+            return
+        self._state = state
+        if self.on_state is not None:
+            try:
+                self.on_state(self.source.name, state)
+            except Exception:
+                log.exception("camera %s: on_state failed", self.source.name)
 
 
 class CameraReader:
@@ -69,24 +272,19 @@ class CameraReader:
         max_backoff_s: float = 2.0,
         on_state: Callable[[str, str], None] | None = None,
     ) -> None:
-        if not (initial_backoff_s > 0 and max_backoff_s >= initial_backoff_s):
-            raise ValueError("need 0 < initial_backoff_s <= max_backoff_s")
+        self.core = ReaderCore(
+            source,
+            camera_id,
+            initial_backoff_s=initial_backoff_s,
+            max_backoff_s=max_backoff_s,
+            on_state=on_state,
+        )
         self.source = source
         self.camera_id = camera_id
         self.on_frame = on_frame
-        self.on_state = on_state
         self.clock_us = clock_us
-        self.initial_backoff_s = float(initial_backoff_s)
-        self.max_backoff_s = float(max_backoff_s)
-
-        self._lock = threading.Lock()
-        self._stats = CameraStats()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._backoff_s = self.initial_backoff_s
-        self._state = "idle"
-        self._last_frame_us: int | None = None
-        self._warned: set[str] = set()
 
     # -- public ----------------------------------------------------------------------
     def start(self) -> None:
@@ -125,13 +323,12 @@ class CameraReader:
     @property
     def stats(self) -> CameraStats:
         """A consistent snapshot: ``captured = delivered + rejected_empty + rejected_size``."""
-        with self._lock:
-            return dataclasses.replace(self._stats)
+        return self.core.stats
 
     @property
     def last_frame_us(self) -> int | None:
         """``t_capture_us`` of the last delivered frame (companion monotonic µs), or None."""
-        return self._last_frame_us
+        return self.core.last_frame_us
 
     @property
     def alive(self) -> bool:
@@ -141,152 +338,29 @@ class CameraReader:
     @property
     def state(self) -> str:
         """The last state: ``"idle"`` before the first open attempt, then one of ``STATES``."""
-        return self._state
+        return self.core.state
 
     # -- thread ------------------------------------------------------------------------
     def _run(self) -> None:
-        src = self.source
-        lost = False  # a loss happened and no open has succeeded since
+        core = self.core
         try:
             while not self._stop.is_set():
-                try:
-                    src.open()
-                except Exception as exc:
-                    with self._lock:
-                        self._stats.open_failures += 1
-                    log.warning(
-                        "camera %s: open failed (%s); retrying in %.1f s",
-                        src.name,
-                        exc,
-                        self._backoff_s,
-                    )
-                    self._set_state("failed")
-                    self._close()
-                    if self._back_off():
-                        break
-                    continue
-                if self._stop.is_set():
+                step = core.step(self.clock_us, self._stop.is_set)
+                if step.frame is not None:
+                    try:
+                        self.on_frame(step.frame)
+                    except Exception:  # e.g. the event loop closed under us; keep reading
+                        log.exception("camera %s: on_frame failed", self.source.name)
+                if step.finished:
                     break
-                if lost:
-                    with self._lock:
-                        self._stats.reconnects += 1
-                    log.info("camera %s: reconnected", src.name)
-                    self._set_state("reconnected")
-                    lost = False
-                else:
-                    log.info("camera %s: open", src.name)
-                    self._set_state("open")
-
-                outcome = self._read_until_done()
-                self._close()
-                if outcome == "stop":
-                    break
-                if outcome == "ended" or not src.live:
-                    with self._lock:
-                        self._stats.ended = True
-                    log.info("camera %s: ended", src.name)
-                    self._set_state("ended")
-                    break
-                lost = True
-                self._set_state("lost")
-                if self._back_off():
+                # Sleep the backoff, woken by stop.
+                if step.wait_s > 0 and self._stop.wait(step.wait_s):
                     break
         except BaseException:  # a bug of ours; never leave the source open
-            log.exception("camera %s: reader thread crashed", src.name)
+            log.exception("camera %s: reader thread crashed", self.source.name)
             raise
         finally:
-            self._close()
-
-    def _read_until_done(self) -> str:
-        """Read until the source is lost (``"lost"``), ends (``"ended"``) or stop (``"stop"``)."""
-        src = self.source
-        while not self._stop.is_set():
-            try:
-                image, t_us = src.read()
-                now_us = self.clock_us()
-            except EndOfStream:
-                return "stop" if self._stop.is_set() else "ended"
-            except CameraGone as exc:
-                if self._stop.is_set():
-                    return "stop"
-                with self._lock:
-                    self._stats.read_errors += 1
-                log.warning("camera %s: lost (%s)", src.name, exc)
-                return "lost"
-            except Exception as exc:
-                if self._stop.is_set():
-                    return "stop"
-                with self._lock:
-                    self._stats.read_errors += 1
-                log.warning(
-                    "camera %s: read() raised %r; treated as lost", src.name, exc, exc_info=True
-                )
-                return "lost"
-            if self._stop.is_set():
-                return "stop"  # read after stop: discarded, not counted
-            # The source answers again: the next loss starts the backoff from the beginning.
-            self._backoff_s = self.initial_backoff_s
-            self._accept(image, now_us if t_us is None else int(t_us))
-        return "stop"
-
-    def _accept(self, image: np.ndarray | None, t_us: int) -> None:
-        src = self.source
-        reason = _reject_reason(image, src.width, src.height)
-        if reason is not None:
-            with self._lock:
-                self._stats.captured += 1
-                if reason == "empty":
-                    self._stats.rejected_empty += 1
-                else:
-                    self._stats.rejected_size += 1
-            if reason not in self._warned:  # once per kind: the counters tell the rest
-                self._warned.add(reason)
-                log.warning(
-                    "camera %s: rejected %s image (%s); expected %dx%dx3 uint8",
-                    src.name,
-                    reason,
-                    _describe(image),
-                    src.width,
-                    src.height,
-                )
-            return
-        assert image is not None
-        retimed = self._last_frame_us is not None and t_us <= self._last_frame_us
-        if retimed:
-            assert self._last_frame_us is not None
-            t_us = self._last_frame_us + 1
-        with self._lock:
-            seq = self._stats.delivered
-            self._stats.captured += 1
-            self._stats.delivered += 1
-            self._stats.retimed += int(retimed)
-        self._last_frame_us = t_us
-        try:
-            self.on_frame(Frame(self.camera_id, seq, t_us, image))
-        except Exception:  # e.g. the event loop closed under us; keep reading
-            log.exception("camera %s: on_frame failed", src.name)
-
-    def _back_off(self) -> bool:
-        """Sleep the current backoff (woken by stop) and double it; True if stopping."""
-        stopping = self._stop.wait(self._backoff_s)
-        self._backoff_s = min(self._backoff_s * 2.0, self.max_backoff_s)
-        return stopping
-
-    def _close(self) -> None:
-        try:
-            self.source.close()
-        except Exception:
-            log.exception("camera %s: close() failed", self.source.name)
-
-    def _set_state(self, state: str) -> None:
-        if state == self._state:
-            return
-        self._state = state
-        if self.on_state is not None:
-            try:
-                self.on_state(self.source.name, state)
-            except Exception:
-                log.exception("camera %s: on_state failed", self.source.name)
+            core.close()
 
 
 def _reject_reason(image: object, width: int, height: int) -> str | None:

@@ -1,10 +1,11 @@
 """The simulator's camera: renders the field test live at the vehicle's true pose (SITL).
 
-A live source ticking at ``fps`` on absolute deadlines of the companion's monotonic
-clock (``t0 + k / fps``, no drift). Each ``read()`` waits for the next tick, asks
-``truth_us(tick_us)`` for the vehicle's exact state at that instant — in SITL the mock
-autopilot's (:meth:`SimulatedCamera.for_mock`) — and renders the world the scenario
-flies in (:func:`~tcm_companion.sim.world.field_world` of the scenario's
+A live source ticking at ``fps`` on absolute deadlines of the clock it is given
+(``clock_us``: by default the companion monotonic clock, ``_mono_us``; in virtual-time
+SITL the simulated one), ``t0 + k / fps``, no drift. Each ``read()`` waits for the next
+tick, asks ``truth_us(tick_us)`` for the vehicle's exact state at that instant — in SITL
+the mock autopilot's (:meth:`SimulatedCamera.for_mock`) — and renders the world the
+scenario flies in (:func:`~tcm_companion.sim.world.field_world` of the scenario's
 :func:`~tcm_companion.sim.scenarios.flight_plan`, as
 :class:`~tcm_companion.sim.export.SimulatedScenario` builds it). The frame's
 ``t_capture_us`` is the tick. By default (``render_ahead``) the frame is rendered before
@@ -13,6 +14,10 @@ daemon's capture-to-output latency is measured without the renderer's ~8 ms; wit
 ``render_ahead=False`` it is delivered a render time after the tick, like a camera with
 a slow readout. If rendering or the reader fell behind, the ticks already past are
 skipped (``skipped_ticks``) so the series stays on its 25 Hz grid.
+
+In virtual time (:mod:`tcm_companion.service.sitl_virtual`) the camera is given the
+simulated clock and :func:`no_sleep`: ``read()`` then returns at once with the next tick
+(in the simulated future), and the simulation hands the frame over at that instant.
 """
 
 from __future__ import annotations
@@ -30,9 +35,15 @@ if TYPE_CHECKING:
     from ...sim.render import Renderer
     from ...sim.scenarios import FlightPlan
 
-#: ``truth_us(t_us) -> (scenario_t_s, pos_ned_m (3,), R_ned_from_body (3, 3))`` or None
-#: while there is no vehicle yet; ``t_us`` on the companion monotonic clock.
+#: ``truth_us(t_mono_us) -> (scenario_t_s, pos_ned_m (3,), R_ned_from_body (3, 3))`` or
+#: None while there is no vehicle yet; ``t_mono_us`` on the camera's clock (the companion
+#: monotonic clock, or the simulated one).
 TruthFn = Callable[[int], "tuple[float, np.ndarray, np.ndarray] | None"]
+
+
+def no_sleep(seconds: float) -> None:
+    """The sleep of a camera on a simulated clock: the simulation moves time, not us."""
+    return None
 
 
 class SimulatedCamera(FrameSource):
@@ -101,12 +112,13 @@ class SimulatedCamera(FrameSource):
         cls, camera_model: CameraModel, mock_autopilot: Any, **kwargs: Any
     ) -> SimulatedCamera:
         """A camera on the mock autopilot's vehicle: truth from
-        ``mock_autopilot.vehicle_truth(t_us)`` (exact position and attitude, no telemetry
-        noise), world and seed from its flight plan. The mock must be driven by the same
-        clock as this camera (the companion monotonic clock, µs)."""
+        ``mock_autopilot.vehicle_truth(t_mono_us)`` (exact position and attitude, no
+        telemetry noise), world and seed from its flight plan. The mock must be driven by
+        the same clock as this camera (``clock_us``: the companion monotonic clock, or a
+        simulated one, µs)."""
 
-        def truth(t_us: int) -> tuple[float, np.ndarray, np.ndarray]:
-            v = mock_autopilot.vehicle_truth(t_us)
+        def truth(t_mono_us: int) -> tuple[float, np.ndarray, np.ndarray]:
+            v = mock_autopilot.vehicle_truth(t_mono_us)
             return float(v.t_s), np.asarray(v.position_ned_m), np.asarray(v.R_ned_from_body)
 
         config = mock_autopilot.config

@@ -1,0 +1,320 @@
+"""What a driver of the :class:`~.companion.Companion` does besides moving bytes and frames.
+
+The asyncio daemon (:mod:`.daemon`) and the virtual-time SITL (:mod:`.sitl_virtual`)
+differ only in where frames and bytes come from and which clock runs; everything they do
+with the Companion's inputs and outputs is here, once:
+
+- a delivered frame goes to the Companion's slot and to the flight log;
+- link bytes are logged (in and out, with their times) and fed to the Companion;
+- a processed frame's result and annotations are logged *before* its bytes are written
+  (replay needs every byte received up to the processing in the log before the result),
+  and after the write its latency, stage times and ``on_result`` are recorded;
+- parameter changes are logged and persisted;
+- the once-a-second health check becomes log records, the systemd watchdog ping (only
+  while ``loop_healthy()``), the status line (systemd and ``on_status``), and the
+  flight log's own state and reports go back to the Companion;
+- the run's :class:`DaemonSummary`.
+
+Every time is µs on the companion monotonic clock (``_mono_us``) the driver runs on.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from ..core.camera import CameraModel
+from ..core.pipeline import FrameResult
+from ..io import topics
+from ..io.allocator import trim_heap
+from ..io.cameras.base import CameraStats, Frame, FrameSource
+from ..mavlink import tcm_dialect as d
+from .companion import (
+    Companion,
+    CompanionStats,
+    FrameProcessed,
+    HealthChecked,
+    Output,
+    ParamsChanged,
+)
+
+if TYPE_CHECKING:
+    from .logsetup import FlightLog
+
+log = logging.getLogger("tcm_companion.service.daemon")
+
+
+class NotifierLike(Protocol):
+    """What the daemon needs of :class:`tcm_companion.io.sdnotify.Notifier`."""
+
+    def ready(self, status: str = "") -> Any: ...
+    def status(self, text: str) -> Any: ...
+    def watchdog(self) -> Any: ...
+    def stopping(self) -> Any: ...
+
+
+class NoNotifier:
+    """Not under systemd: nobody to notify."""
+
+    def ready(self, status: str = "") -> None:
+        pass
+
+    def status(self, text: str) -> None:
+        pass
+
+    def watchdog(self) -> None:
+        pass
+
+    def stopping(self) -> None:
+        pass
+
+
+@dataclass
+class CameraInput:
+    """One camera as the daemon runs it: its model (for the pipeline) and its source."""
+
+    name: str
+    model: CameraModel
+    source: FrameSource
+
+
+@dataclass
+class DaemonSummary:
+    """What a run did; the frame counts always add up:
+    ``captured = processed + failed + dropped + rejected`` (rejected: empty or
+    wrong-sized frames refused by the reader; dropped: superseded, or still waiting at
+    shutdown)."""
+
+    duration_s: float
+    captured: int
+    processed: int
+    failed: int
+    dropped: int
+    rejected: int
+    latencies_ms: list[float]
+    stats: CompanionStats
+    camera_stats: dict[str, CameraStats]
+    endpoint_stats: dict[str, int]
+    watchdog_pings: int
+    watchdog_withheld: int
+    faults: dict[str, int] = field(default_factory=dict)
+    stage_ms: dict[str, list[float]] = field(default_factory=dict)
+
+    @property
+    def frames_balance(self) -> bool:
+        return self.captured == self.processed + self.failed + self.dropped + self.rejected
+
+    def latency_percentile_ms(self, q: float) -> float:
+        if not self.latencies_ms:
+            return float("nan")
+        return float(np.percentile(np.asarray(self.latencies_ms), q))
+
+
+class Plumbing:
+    """The driver-independent part of running a :class:`Companion` (module docstring)."""
+
+    def __init__(
+        self,
+        companion: Companion,
+        cameras: Sequence[CameraInput],
+        *,
+        flight_log: FlightLog | None = None,
+        notifier: NotifierLike | None = None,
+        on_result: Callable[[int, FrameResult], None] | None = None,
+        on_status: Callable[[str], None] | None = None,
+        persist: Callable[[], None] | None = None,
+        loop_healthy: Callable[[], tuple[bool, str]] = lambda: (True, ""),
+    ) -> None:
+        self.companion = companion
+        self.cameras = list(cameras)
+        self.flight_log = flight_log
+        self.notifier: NotifierLike = notifier or NoNotifier()
+        self.on_result = on_result
+        self.on_status = on_status
+        self.persist = persist
+        self.loop_healthy = loop_healthy
+        self.latencies_ms: deque[float] = deque(maxlen=200_000)
+        # Where the capture-to-output time goes, per frame (ms): camera to the Companion,
+        # waiting in the slot (incl. for the attitude), the pipeline, the link write.
+        self.stage_ms: dict[str, deque[float]] = {
+            k: deque(maxlen=200_000) for k in ("handoff", "queue", "pipeline", "send")
+        }
+        self.watchdog_pings = 0
+        self.watchdog_withheld = 0
+        self.health_checks = 0
+        self._log_doc: dict[str, Any] = {}
+
+    # -- inputs ---------------------------------------------------------------------------
+    def frame_arrived(self, frame: Frame, now_mono_us: int) -> None:
+        """A camera delivered ``frame`` (its reader's ``on_frame``, on the driver's loop)."""
+        self.companion.on_frame(frame.camera_id, frame.image, frame.t_capture_us, now_mono_us)
+        if self.flight_log is not None:
+            # Every delivered frame, processed or not: the log shows what the camera saw.
+            self.flight_log.log_frame(frame.camera_id, frame.t_capture_us, frame.image)
+
+    def bytes_received(self, data: bytes, now_mono_us: int) -> None:
+        """Bytes read from the autopilot link at ``now_mono_us``."""
+        if self.flight_log is not None:
+            self.flight_log.log_mavlink("in", now_mono_us, data)
+        self.processed(self.companion.receive_data(data, now_mono_us), now_mono_us)
+
+    # -- one turn of the driver's loop ----------------------------------------------------------
+    def process_due(self, now_mono_us: int) -> list[Output]:
+        """:meth:`Companion.process_due`, with the flight log's news handed in first."""
+        comp = self.companion
+        fl = self.flight_log
+        if fl is not None:
+            while not fl.events.empty():
+                severity, text = fl.events.get_nowait()
+                sev = d.MAV_SEVERITY_INFO if severity == "info" else d.MAV_SEVERITY_WARNING
+                comp.report(sev, f"TCM: {text}", now_mono_us)
+            if comp.health_due(now_mono_us):
+                code, self._log_doc = fl.state()
+                comp.set_log_state(
+                    code,
+                    int(self._log_doc.get("frames_dropped_queue", 0)),
+                    int(self._log_doc.get("messages_dropped_queue", 0)),
+                )
+        return comp.process_due(now_mono_us)
+
+    def processed(self, outputs: Sequence[Output], done_mono_us: int) -> None:
+        """Handle ``outputs`` before their bytes are written; ``done_mono_us``: when the
+        turn's work (the pipeline) finished."""
+        for out in outputs:
+            if isinstance(out, FrameProcessed):
+                if out.result is not None and self.flight_log is not None:
+                    self._log_result(out, done_mono_us)
+            elif isinstance(out, ParamsChanged):
+                if self.flight_log is not None:
+                    self.flight_log.log_json(
+                        topics.PARAM, out.now_mono_us, {"name": out.name, "value": out.value}
+                    )
+                if self.persist is not None:
+                    try:
+                        self.persist()
+                    except OSError as exc:
+                        log.warning("cannot persist parameters: %s", exc)
+            elif isinstance(out, HealthChecked):
+                self._health_checked(out)
+
+    def bytes_to_send(self, now_mono_us: int) -> bytes:
+        """What the Companion has for the link, logged as written at ``now_mono_us``."""
+        data = self.companion.data_to_send()
+        if data and self.flight_log is not None:
+            self.flight_log.log_mavlink("out", now_mono_us, data)
+        return data
+
+    def sent(self, outputs: Sequence[Output], done_mono_us: int, sent_mono_us: int) -> None:
+        """The turn's bytes were written at ``sent_mono_us``: latencies and ``on_result``."""
+        for out in outputs:
+            if not isinstance(out, FrameProcessed) or out.result is None:
+                continue
+            self.companion.frame_sent(out, sent_mono_us)
+            self.latencies_ms.append((sent_mono_us - out.capture_mono_us) / 1000.0)
+            st = self.stage_ms
+            st["handoff"].append((out.arrival_mono_us - out.capture_mono_us) / 1000.0)
+            st["queue"].append((out.process_mono_us - out.arrival_mono_us) / 1000.0)
+            st["pipeline"].append((done_mono_us - out.process_mono_us) / 1000.0)
+            st["send"].append((sent_mono_us - done_mono_us) / 1000.0)
+            if self.on_result is not None:
+                self.on_result(out.camera_id, out.result)
+
+    # -- details -------------------------------------------------------------------------------
+    def _log_result(self, out: FrameProcessed, done_mono_us: int) -> None:
+        from .logdocs import annotation_circles, result_doc
+
+        assert self.flight_log is not None and out.result is not None
+        doc = result_doc(
+            out.camera_id,
+            out.result,
+            threshold=out.threshold,
+            t_process_us=out.process_mono_us,
+            override=out.override,
+            clock_offset_us=out.clock_offset_us,
+            latency_ms=(done_mono_us - out.capture_mono_us) / 1000.0,
+            object_radius_m=out.object_radius_m,
+        )
+        self.flight_log.log_json(topics.RESULT, out.process_mono_us, doc)
+        model = self.cameras[out.camera_id].model
+        self.flight_log.log_annotations(
+            out.camera_id, out.result.t_us, annotation_circles(out.result, model)
+        )
+
+    def _health_checked(self, hc: HealthChecked) -> None:
+        self.health_checks += 1
+        if self.health_checks in (1, 5):
+            # Start-up is over (imports, renderer or camera set-up, first frames): return
+            # what it used to the kernel, so RSS is the steady state.
+            trim_heap()
+        now = hc.now_mono_us
+        for name, problem in hc.changes:
+            if problem:
+                log.warning("input %s: %s", name, problem)
+            else:
+                log.info("input %s: OK", name)
+            if self.flight_log is not None:
+                self.flight_log.log_json(
+                    topics.EVENT,
+                    now,
+                    {
+                        "severity": "warning" if problem else "info",
+                        "input": name,
+                        "text": problem or f"{name} OK",
+                    },
+                )
+        healthy, why = self.loop_healthy()
+        if healthy:
+            self.notifier.watchdog()
+            self.watchdog_pings += 1
+        else:
+            self.watchdog_withheld += 1
+            log.error("not pinging the watchdog: %s", why)
+        if self.flight_log is not None:
+            rep = hc.report
+            self.flight_log.log_json(
+                topics.HEALTH,
+                now,
+                {
+                    "frame_rate_hz": rep.frame_rate_hz,
+                    "latency_ms": rep.latency_ms,
+                    "frames_dropped": rep.frames_dropped,
+                    "health_flags": rep.health_flags,
+                    "egomotion_quality_pct": rep.egomotion_quality_pct,
+                    "inputs": hc.problems,
+                    "status": hc.status_line,
+                    "log": self._log_doc,
+                },
+            )
+        self.notifier.status(hc.status_line)
+        if self.on_status is not None:
+            self.on_status(hc.status_line)
+
+    def summary(
+        self, duration_s: float, camera_stats: dict[str, CameraStats], lost_in_handoff: int = 0
+    ) -> DaemonSummary:
+        """The run's summary; ``lost_in_handoff``: delivered frames that never reached
+        the Companion (the loop was closing), counted as dropped."""
+        comp = self.companion
+        captured = sum(s.captured for s in camera_stats.values())
+        rejected = sum(s.rejected_empty + s.rejected_size for s in camera_stats.values())
+        return DaemonSummary(
+            duration_s=duration_s,
+            captured=captured,
+            processed=comp.stats.frames_processed,
+            failed=comp.stats.frames_failed,
+            dropped=comp.stats.frames_dropped + lost_in_handoff,
+            rejected=rejected,
+            latencies_ms=list(self.latencies_ms),
+            stats=comp.stats,
+            camera_stats=camera_stats,
+            endpoint_stats=comp.endpoint_stats(),
+            watchdog_pings=self.watchdog_pings,
+            watchdog_withheld=self.watchdog_withheld,
+            faults=dict(comp.stats.faults),
+            stage_ms={k: list(v) for k, v in self.stage_ms.items()},
+        )

@@ -1,0 +1,144 @@
+"""SITL in virtual time (service/sitl_virtual.py): the same results and flight-log bytes
+every run, the accuracy floor, and what the simulated clock models.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tcm_companion.config import AppConfig
+from tcm_companion.io.flightlog import read_log, read_metadata
+from tcm_companion.service.sitl import SitlReport, run_sitl, run_sitl_virtual
+from tcm_companion.service.sitl_virtual import (
+    VIRTUAL_START_MONO_US,
+    VIRTUAL_UNIX_US_AT_START,
+    VirtualTimeModel,
+)
+from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
+
+
+def _stable(lines: list[str]) -> list[str]:
+    """The summary without what may differ between identical runs: the wall-clock speed
+    and the log's file names (the writer names files by the wall clock)."""
+    return [x for x in lines if not x.startswith(("  speed:", "  flight log files:"))]
+
+
+def _log_bytes(directory: Path) -> list[bytes]:
+    return [p.read_bytes() for p in sorted(directory.glob("*.mcap"))]
+
+
+def test_two_runs_give_identical_results_and_flight_log_bytes(tmp_path: Path) -> None:
+    reports: list[SitlReport] = []
+    for run in ("a", "b"):
+        reports.append(
+            run_sitl_virtual(
+                AppConfig(),
+                duration_s=4.0,
+                state_dir=str(tmp_path / f"state-{run}"),
+                log_dir=str(tmp_path / f"log-{run}"),
+            )
+        )
+    a, b = reports
+    assert a.ok, a.lines()
+    assert a.results_frames >= 4 * 25 - 2
+    assert a.results_sha256 == b.results_sha256
+    assert _stable(a.lines()) == _stable(b.lines())
+    logs_a, logs_b = _log_bytes(tmp_path / "log-a"), _log_bytes(tmp_path / "log-b")
+    assert logs_a and logs_a == logs_b  # byte for byte
+    assert a.log_sha256 == b.log_sha256
+    # Its times are the simulation's: monotonic from VIRTUAL_START_MONO_US, Unix time
+    # (the log's wall clock, log_time) from VIRTUAL_UNIX_US_AT_START.
+    meta = read_metadata(tmp_path / "log-a")
+    assert meta["started_utc"] == "2024-06-10T06:13:20Z"
+    first = next(read_log(tmp_path / "log-a"))
+    mono_us = first.publish_time_ns // 1000
+    assert VIRTUAL_START_MONO_US <= mono_us < VIRTUAL_START_MONO_US + 4_000_000
+    assert first.log_time_ns // 1000 - mono_us == VIRTUAL_UNIX_US_AT_START - VIRTUAL_START_MONO_US
+
+
+def test_the_pipeline_and_the_links_take_modelled_time(tmp_path: Path) -> None:
+    model = VirtualTimeModel(process_us=7_000, link_latency_us=2_000)
+    report = run_sitl_virtual(AppConfig(), duration_s=3.0, state_dir=str(tmp_path), model=model)
+    s = report.summary
+    # Capture -> written: the pipeline's modelled 7 ms (frames are handed over at their
+    # instant and never wait behind another one at 25 Hz).
+    assert s.latency_percentile_ms(50) == pytest.approx(7.0)
+    assert s.dropped <= 1 and s.frames_balance
+    # The mock received each status a link latency after it was written.
+    assert report.mock_status_received > 0 and report.mock_status_problems == 0
+    assert "modelled: pipeline 7 ms, link 2 ms" in "\n".join(report.lines())
+
+
+def test_a_slow_pipeline_drops_frames_behind_it(tmp_path: Path) -> None:
+    """A pipeline that takes longer than a frame period: the loop is busy, the next frame
+    waits in its slot and the one after replaces it (dropped, counted, flagged)."""
+    model = VirtualTimeModel(process_us=70_000)
+    report = run_sitl_virtual(
+        AppConfig(), duration_s=3.0, state_dir=str(tmp_path), model=model, min_accuracy=None
+    )
+    s = report.summary
+    assert s.frames_balance
+    assert s.dropped >= 0.3 * s.captured and s.processed >= 0.3 * s.captured
+    assert s.latency_percentile_ms(50) >= 70.0
+
+
+def test_accuracy_below_the_floor_fails_the_run(tmp_path: Path) -> None:
+    report = run_sitl_virtual(
+        AppConfig(), duration_s=4.0, state_dir=str(tmp_path), min_accuracy=1.01
+    )
+    assert report.score.decided > 0
+    assert not report.ok
+    assert any("below the floor of 101%" in f for f in report.failures), report.failures
+    assert "(floor 101%)" in "\n".join(report.lines())
+
+
+def test_a_run_that_decides_nothing_says_so_and_fails(tmp_path: Path) -> None:
+    # No link at all: no attitude, every object unknown.
+    report = run_sitl_virtual(
+        AppConfig(), duration_s=3.0, state_dir=str(tmp_path), link_up=lambda t_s: False
+    )
+    text = "\n".join(report.lines())
+    assert report.score.decided == 0 and report.score.truth_after_warmup > 0
+    assert "no decision" in text and "nan" not in text
+    assert any(f.startswith("no decision on") for f in report.failures), report.failures
+    assert not report.ok
+
+
+def test_run_sitl_takes_the_virtual_clock_and_a_mock_of_its_own(tmp_path: Path) -> None:
+    """A mock passed in sets the start of the simulated clock (any start works)."""
+    start = 5_000_000_000
+    mock = MockAutopilot(MockAutopilotConfig(scenario="COLLISION"), start)
+    config = AppConfig()
+    config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, scenario="COLLISION"))
+    report = asyncio.run(
+        run_sitl(config, duration_s=3.0, state_dir=str(tmp_path), mock=mock, clock="virtual")
+    )
+    assert report.summary.processed >= 3 * 25 - 2
+    assert min(r.recv_us for r in mock.received_status) >= start
+    with pytest.raises(ValueError, match="virtual time runs its own"):
+        asyncio.run(run_sitl(config, cameras=[], clock="virtual"))
+
+
+def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[Any]:
+    return subprocess.run(
+        [sys.executable, "-m", "tcm_companion", "sitl", "--clock", "virtual", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=cwd,
+    )
+
+
+def test_the_cli_exits_non_zero_below_the_accuracy_floor(tmp_path: Path) -> None:
+    ok = _cli("--duration", "3", "--log-level", "ERROR", cwd=tmp_path)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert "virtual clock" in ok.stdout and "(floor 90%)" in ok.stdout
+    bad = _cli("--duration", "3", "--min-accuracy", "101", "--log-level", "ERROR", cwd=tmp_path)
+    assert bad.returncode == 1 and "below the floor of 101%" in bad.stdout

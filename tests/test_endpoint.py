@@ -612,3 +612,26 @@ def test_collision_conditions_on_their_own() -> None:
     assert cc.update([], 3.0, T0 + 3_500_000) == []  # cleared
     assert cc.update([alarm], 3.0, T0 + 3_600_000) == [alarm]  # a new one
     assert cc.update([alarm], 0.0, T0 + 3_700_000) == []  # alarms off
+
+
+def test_health_waits_for_the_autopilots_clock() -> None:
+    # A TCM_PIPELINE_HEALTH with time_boot_ms 0 reads as ancient to the autopilot: with an
+    # autopilot connected, none goes out before its clock is known (TIMESYNC or telemetry).
+    ep, ap = connected()
+    for k in range(5):
+        ep.poll(T0 + k * 500_000)
+    early = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "TCM_PIPELINE_HEALTH"]
+    assert early == []
+    for k in range(10):  # attitude at 50 Hz: the telemetry clock fit becomes ready
+        ep.receive_data(ap.attitude(BOOT0_MS + 20 * k), T0 + 2_500_000 + 20_000 * k)
+    for k in range(3):
+        ep.poll(T0 + 3_000_000 + k * 500_000)
+    health = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "TCM_PIPELINE_HEALTH"]
+    assert health and all(h.time_boot_ms > 0 for h in health)
+
+
+def test_health_without_an_autopilot_still_goes_out() -> None:
+    ep = CompanionEndpoint(now_us=T0)  # a ground station alone on the link
+    ep.poll(T0)
+    gcs = MavlinkCodec(255, 190)
+    assert [m for m in gcs.feed(ep.data_to_send()) if m.get_type() == "TCM_PIPELINE_HEALTH"]

@@ -355,7 +355,7 @@ class CompanionEndpoint:
                 self._next_heartbeat = now_us
             elif wanted == d.MAVLINK_MSG_ID_TCM_PIPELINE_HEALTH:
                 result = d.MAV_RESULT_ACCEPTED
-                self._next_health = now_us
+                self.send_health_now(now_us)  # asked for: sent whatever the time base
             else:
                 result = d.MAV_RESULT_DENIED
         elif (
@@ -536,7 +536,11 @@ class CompanionEndpoint:
         for text in self.statustexts.poll(now_us):
             self._send(text, now_us)
         if now_us >= self._next_health:
-            if self.params.values["TCM_OUT_HEALTH"]:
+            # With an autopilot, not before its clock is known: time_boot_ms = 0 reads as
+            # ancient there (the mock, like the applet, calls such a report stale). With no
+            # autopilot at all (a GCS alone) it goes out as it is.
+            waiting = self.autopilot_connected and not self.has_time_base(now_us)
+            if self.params.values["TCM_OUT_HEALTH"] and not waiting:
                 self._send(self._health_message(now_us), now_us)
             self._next_health = now_us + cfg.health_interval_us
         if now_us >= self._next_obstacle:

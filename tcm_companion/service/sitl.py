@@ -75,7 +75,7 @@ CameraFactory = Callable[..., Any]
 class Score:
     """Object-frames of balls in view, matched to the daemon's objects by bearing."""
 
-    truth_frames: int = 0  # ball-frames with the ball in front of the camera
+    truth_frames: int = 0  # object-frames with the object in front of the camera
     truth_after_warmup: int = 0  # ... of them after the warm-up
     matched: int = 0
     decided: int = 0  # matched and not "unknown" (after the warm-up)
@@ -127,7 +127,7 @@ class SitlReport:
     def accuracy_text(self) -> str:
         sc = self.score
         if not sc.decided:
-            return f"no decision ({sc.truth_after_warmup} ball-frames in view)"
+            return f"no decision ({sc.truth_after_warmup} object-frames in view)"
         floor = "" if self.min_accuracy is None else f" (floor {100 * self.min_accuracy:.0f}%)"
         return f"accuracy {100 * sc.accuracy:.1f}% of {sc.decided} decided{floor}"
 
@@ -150,7 +150,7 @@ class SitlReport:
             f" ({'balanced' if s.frames_balance else 'NOT BALANCED'})",
             f"  latency capture->MAVLink: p50 {lat[0]:.2f} ms, p90 {lat[1]:.2f} ms,"
             f" p99 {lat[2]:.2f} ms{modelled}",
-            f"  objects: {sc.matched}/{sc.truth_frames} ball-frames matched; after {WARMUP_S:.0f} s"
+            f"  objects: {sc.matched}/{sc.truth_frames} object-frames matched; after {WARMUP_S:.0f} s"
             f" warm-up: {self.accuracy_text()}, coverage {coverage}",
             f"  states: {dict(sc.by_state)}",
             f"  mock autopilot: {self.mock_status_received} TCM_OBJECT_STATUS received,"
@@ -205,15 +205,15 @@ class _Scorer:
         objs = [o for o in result.objects if o.detected]
         used: set[int] = set()
         sc = self.score
-        for ball in self.mock.plan.balls:
-            rel = ball.centre_ned_m(truth.t_s) - truth.position_ned_m
+        for obj in self.mock.plan.objects:  # balls and targets of any shape
+            rel = obj.centre_ned_m(truth.t_s) - truth.position_ned_m
             b_true = normalize(rel)
             px = self.camera.pixel_from_bearing_cam(R_cam_from_ned @ b_true)
             if not np.all(np.isfinite(px)) or not bool(self.camera.in_image(px)):
                 continue
             sc.truth_frames += 1
             sc.truth_after_warmup += int(warm)
-            alpha = math.asin(min(1.0, ball.radius_m / float(np.linalg.norm(rel))))
+            alpha = math.asin(min(1.0, obj.bounding_radius_m / float(np.linalg.norm(rel))))
             best, best_ang = -1, math.inf
             for i, o in enumerate(objs):
                 ang = float(angle_between(o.bearing_ned, b_true))
@@ -230,7 +230,7 @@ class _Scorer:
             sc.by_state[o.state] += 1
             if o.state != "unknown":
                 sc.decided += 1
-                sc.correct += int((o.state == "moving") == ball.moving)
+                sc.correct += int((o.state == "moving") == obj.moving)
 
 
 class _LoopLag:
@@ -357,7 +357,7 @@ def _report(
             )
         elif not sc.decided and sc.truth_after_warmup:
             failures.append(
-                f"no decision on {sc.truth_after_warmup} ball-frames in view after the warm-up"
+                f"no decision on {sc.truth_after_warmup} object-frames in view after the warm-up"
             )
     wall_s, cpu_s = timer.elapsed()
     return SitlReport(

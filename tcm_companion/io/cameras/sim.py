@@ -5,7 +5,7 @@ A live source ticking at ``fps`` on absolute deadlines of the clock it is given
 SITL the simulated one), ``t0 + k / fps``, no drift. Each ``read()`` waits for the next
 tick, asks ``truth_us(tick_us)`` for the vehicle's exact state at that instant — in SITL
 the mock autopilot's (:meth:`SimulatedCamera.for_mock`) — and renders the world the
-scenario flies in (:func:`~tcm_companion.sim.world.field_world` of the scenario's
+scenario flies in (:func:`~tcm_companion.sim.scenarios.plan_world` of the scenario's
 :func:`~tcm_companion.sim.scenarios.flight_plan`, as
 :class:`~tcm_companion.sim.export.SimulatedScenario` builds it). The frame's
 ``t_capture_us`` is the tick. By default (``render_ahead``) the frame is rendered before
@@ -131,9 +131,9 @@ class SimulatedCamera(FrameSource):
         """The ray caster (built on first use: ~1.5 s the first time in a process)."""
         if self._renderer is None:
             from ...sim.render import Renderer
-            from ...sim.world import field_world
+            from ...sim.scenarios import plan_world
 
-            world = field_world(self.plan.balls, self.plan.heading_rad)
+            world = plan_world(self.plan)  # balls, other targets, the scene's extras
             self._renderer = Renderer(
                 world, self.camera_model, fisheye_fov_deg=self.fisheye_fov_deg, seed=self.seed
             )

@@ -378,6 +378,12 @@ class FlightLogWriter:
 
     ``free_check_interval_s`` (how often free space is looked at) and
     ``retry_interval_s`` (how often a new part is tried while in fault) exist for tests.
+
+    ``deterministic`` (a simulation on its own clock, ``sitl --clock virtual``): the
+    file's bytes depend only on what was logged. Chunks end, and parts rotate by time, on
+    the records' own time stamps instead of the wall clock's (the same crash-safety
+    bound, in the log's time); a producer waits for room instead of dropping; parts are
+    named after ``session`` (e.g. the simulation's start time) instead of the wall clock.
     """
 
     def __init__(
@@ -390,8 +396,12 @@ class FlightLogWriter:
         on_event: Callable[[str, str], None] | None = None,
         free_check_interval_s: float = 1.0,
         retry_interval_s: float = 3.0,
+        deterministic: bool = False,
+        session: str | None = None,
     ) -> None:
         self.config = config
+        self.deterministic = deterministic
+        self._session_name = session
         self.directory = Path(directory)
         if wall_minus_mono_ns is None:
             wall_minus_mono_ns = time.time_ns() - time.monotonic_ns()
@@ -435,6 +445,9 @@ class FlightLogWriter:
         self._disk_low = False
         self._next_free_check = 0.0
         self._next_retry = 0.0
+        # deterministic mode: the records' time of the next flush and of the part's start
+        self._next_flush_record_us: int | None = None
+        self._part_started_record_us: int | None = None
 
     # -- lifecycle ---------------------------------------------------------------------
 
@@ -455,7 +468,7 @@ class FlightLogWriter:
         self._metadata = meta
         if not self.config.enabled:
             return
-        self._session = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+        self._session = self._session_name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
         now = time.monotonic()
         try:
             self._open_file()
@@ -524,8 +537,17 @@ class FlightLogWriter:
         ok = False
         if self._accepting:
             try:
-                self._q.put_nowait(item)
-                ok = True
+                if self.deterministic:  # wait for room (a simulation's time does not pass)
+                    while self._accepting and self.alive:
+                        try:
+                            self._q.put(item, timeout=0.05)
+                            ok = True
+                            break
+                        except queue.Full:
+                            continue
+                else:
+                    self._q.put_nowait(item)
+                    ok = True
             except Exception:  # queue.Full, or anything: never raise into the daemon
                 pass
         c = self._counts
@@ -562,6 +584,20 @@ class FlightLogWriter:
     def alive(self) -> bool:
         """The writer thread is running (for the daemon's watchdog)."""
         return self._thread is not None and self._thread.is_alive()
+
+    def wait_drained(self, timeout_s: float = 60.0) -> bool:
+        """Block until the writer has handled every item queued so far (or ``timeout_s``
+        passed, or the thread ended); True when drained. For deterministic counters."""
+        deadline = time.monotonic() + timeout_s
+        while self.alive and time.monotonic() < deadline:
+            with self._lock:
+                c = self._counts
+                frames = c.frames_logged + c.frames_dropped_disk + c.frames_dropped_error
+                msgs = c.messages_logged + c.messages_dropped_disk + c.messages_dropped_error
+                if frames >= c.frames_queued and msgs >= c.messages_queued:
+                    return True
+            time.sleep(0.0005)
+        return not self.alive
 
     @property
     def stats(self) -> FlightLogStats:
@@ -601,7 +637,7 @@ class FlightLogWriter:
                 self._process(item)
             now = time.monotonic()
             self._housekeeping(now)
-            if now >= next_flush:
+            if now >= next_flush and not self.deterministic:
                 self._flush(now)
                 next_flush = now + interval
             self._counts.writer_cpu_s = time.thread_time()
@@ -629,6 +665,8 @@ class FlightLogWriter:
             self._counts.count(kind, outcome)
 
     def _process(self, item: _Item) -> None:
+        if self.deterministic:
+            self._record_time_housekeeping(int(item[2]))
         kind = item[0]
         if kind in (_FRAME, _ANNOT) and self._disk_low:
             self._count(kind, "dropped_disk")
@@ -731,12 +769,31 @@ class FlightLogWriter:
         self._channels[topic] = channel_id
         return channel_id
 
+    def _record_time_housekeeping(self, t_us: int) -> None:
+        """Deterministic mode: flush and rotate by the records' time (every item's
+        ``t_us``), before writing the first record past the interval."""
+        step_us = round(self.config.flush_interval_s * 1e6)
+        if self._next_flush_record_us is None:
+            self._next_flush_record_us = t_us + step_us
+        elif t_us >= self._next_flush_record_us:
+            self._flush(time.monotonic())
+            self._next_flush_record_us = t_us + step_us
+        if self._part_started_record_us is None:
+            self._part_started_record_us = t_us
+        elif t_us - self._part_started_record_us >= self.config.rotate_interval_s * 1e6:
+            self._part_started_record_us = t_us
+            self._rotate(time.monotonic())
+
     def _housekeeping(self, now: float) -> None:
         if now >= self._next_free_check:
             self._next_free_check = now + self._free_check_interval_s
             self._check_free(now)
             self._check_file_linked(now)
-        if self._mcap is not None and now - self._file_opened_at >= self.config.rotate_interval_s:
+        if (
+            self._mcap is not None
+            and not self.deterministic
+            and now - self._file_opened_at >= self.config.rotate_interval_s
+        ):
             self._rotate(now)
         if self._fault and now >= self._next_retry:
             self._retry(now)

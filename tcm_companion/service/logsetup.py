@@ -16,7 +16,7 @@ Two modes:
   (``unix_minus_mono_us``), a producer waits for room instead of dropping (waiting costs
   no simulated time), the counters are read once the writer has caught up, and chunks
   end every ``flush_interval_s`` of the *records'* time instead of the wall clock's
-  (:class:`_RecordTimeFlushWriter`, see there for the change it stands in for).
+  (the writer's ``deterministic`` mode).
 """
 
 from __future__ import annotations
@@ -35,8 +35,6 @@ from .. import __version__
 from ..config import AppConfig, config_to_toml
 from ..io.flightlog import FlightLogStats, FlightLogWriter
 from .plumbing import CameraInput
-
-_WAIT_S = 0.0005  # how often a deterministic producer looks whether the writer caught up
 
 
 def log_directory(config: AppConfig, state_dir: Path | None = None) -> Path:
@@ -72,41 +70,6 @@ def metadata(
     return meta
 
 
-class _RecordTimeFlushWriter(FlightLogWriter):
-    """A :class:`FlightLogWriter` whose chunks end on the records' own time.
-
-    The writer ends its open MCAP chunk and flushes every ``flush_interval_s`` of wall
-    time, so where chunks end — and the file's bytes — depends on how fast the machine
-    ran. In virtual time that must not be. This subclass skips the wall-clock flushes and
-    flushes instead before the first record whose time stamp (companion clock, simulated
-    here) is ``flush_interval_s`` past the last flush: the same crash-safety bound, in the
-    log's own time.
-
-    It stands in for a change to ``io/flightlog.py`` (not this module's to make): a
-    constructor option ``flush_on="wall" | "records"`` doing exactly this in ``_loop``
-    and ``_process``, plus ``block_when_full`` for :class:`FlightLog`'s waiting producers.
-    It overrides two private methods of the writer; ``tests/test_sitl_virtual.py``
-    catches a writer change that breaks it (the two logs' bytes differ).
-    """
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._next_flush_record_us: int | None = None
-
-    def _flush(self, now: float) -> None:  # the wall-clock flushes of the writer loop
-        return
-
-    def _process(self, item: tuple[Any, ...]) -> None:
-        t_us = int(item[2])  # every queued item is (kind, key, t_us, payload)
-        step_us = round(self.config.flush_interval_s * 1e6)
-        if self._next_flush_record_us is None:
-            self._next_flush_record_us = t_us + step_us
-        elif t_us >= self._next_flush_record_us:
-            FlightLogWriter._flush(self, time.monotonic())
-            self._next_flush_record_us = t_us + step_us
-        super()._process(item)
-
-
 class FlightLog:
     """The flight log as the daemon's plumbing uses it (see the module docstring).
 
@@ -116,19 +79,12 @@ class FlightLog:
     put there from its thread; the plumbing turns them into STATUSTEXT.
     """
 
-    def __init__(self, writer: FlightLogWriter, deterministic: bool = False) -> None:
+    def __init__(self, writer: FlightLogWriter) -> None:
         self.writer = writer
-        self.deterministic = deterministic
+        self.deterministic = writer.deterministic
         self.events: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
-        self._room = max(1, writer.config.queue_items - 1)
-
-    def _wait_for_room(self) -> None:
-        if self.deterministic:
-            while self.writer.stats.queue_depth >= self._room and self.writer.alive:
-                time.sleep(_WAIT_S)
 
     def log_frame(self, camera_id: int, t_capture_mono_us: int, image: np.ndarray) -> bool:
-        self._wait_for_room()
         return self.writer.log_frame(camera_id, t_capture_mono_us, image)
 
     def log_annotations(
@@ -137,29 +93,20 @@ class FlightLog:
         t_capture_mono_us: int,
         circles: list[tuple[float, float, float, str]],
     ) -> bool:
-        self._wait_for_room()
         return self.writer.log_annotations(camera_id, t_capture_mono_us, circles)
 
     def log_mavlink(self, direction: Literal["in", "out"], t_mono_us: int, data: bytes) -> bool:
-        self._wait_for_room()
         return self.writer.log_mavlink(direction, t_mono_us, data)
 
     def log_json(self, topic: str, t_mono_us: int, doc: Mapping[str, Any]) -> bool:
-        self._wait_for_room()
         return self.writer.log_json(topic, t_mono_us, doc)
 
     def caught_up(self) -> FlightLogStats:
         """The writer's counters; in deterministic mode once it has written everything
         queued so far (so that they depend on what was logged, not on thread timing)."""
-        st = self.writer.stats
-        while self.deterministic and self.writer.alive:
-            frames_done = st.frames_logged + st.frames_dropped_disk + st.frames_dropped_error
-            msgs_done = st.messages_logged + st.messages_dropped_disk + st.messages_dropped_error
-            if frames_done >= st.frames_queued and msgs_done >= st.messages_queued:
-                break
-            time.sleep(_WAIT_S)
-            st = self.writer.stats
-        return st
+        if self.deterministic:
+            self.writer.wait_drained(timeout_s=600.0)
+        return self.writer.stats
 
     def state(self) -> tuple[int, dict[str, Any]]:
         """``(TCM_LOG_STATE, counters for the health record)``."""
@@ -214,11 +161,19 @@ def start_flight_log(
         if holder:
             holder[0].events.put((severity, text))
 
-    cls = _RecordTimeFlushWriter if deterministic else FlightLogWriter
-    writer = cls(
-        config.logging, directory, wall_minus_mono_ns=wall_minus_mono_ns, on_event=on_event
+    session = None
+    if deterministic:
+        assert started_unix_us is not None
+        session = time.strftime("%Y%m%d-%H%M%S", time.gmtime(started_unix_us / 1e6))
+    writer = FlightLogWriter(
+        config.logging,
+        directory,
+        wall_minus_mono_ns=wall_minus_mono_ns,
+        on_event=on_event,
+        deterministic=deterministic,
+        session=session,
     )
-    flight_log = FlightLog(writer, deterministic)
+    flight_log = FlightLog(writer)
     holder.append(flight_log)
     writer.start(metadata(config, cameras, params, started_unix_us))
     return flight_log

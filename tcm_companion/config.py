@@ -49,7 +49,7 @@ class SimConfig:
     brake_on_collision: bool = True  # the mock brakes on a collision-course alarm
 
     def __post_init__(self) -> None:
-        from .sim.scenarios import SCENARIO_NAMES
+        from .sim.names import SCENARIO_NAMES
 
         if self.scenario.upper() not in SCENARIO_NAMES:
             raise ValueError(

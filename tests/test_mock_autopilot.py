@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega
 
+from tcm_companion.cli.sim import add_mock_autopilot_arguments
 from tcm_companion.io.transports import memory_pair
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
@@ -37,7 +38,6 @@ from tcm_companion.sim.mock_autopilot import (
 )
 from tcm_companion.sim.mock_autopilot_run import (
     TransportClosed,
-    add_arguments,
     config_from_args,
     run_mock_autopilot,
 )
@@ -952,7 +952,7 @@ def test_cli_arguments_make_a_config() -> None:
     import argparse
 
     parser = argparse.ArgumentParser()
-    add_arguments(parser)
+    add_mock_autopilot_arguments(parser)
     args = parser.parse_args(
         [
             "--connect",

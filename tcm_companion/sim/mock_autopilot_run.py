@@ -8,8 +8,10 @@ Like aioquic's asyncio protocol, this only moves bytes and time: received bytes 
 The transport is anything with ``async recv() -> bytes`` and ``async send(bytes)``
 (:mod:`tcm_companion.io.transports`); :func:`run_mock_autopilot` does not open or close
 it. :func:`serve_mock_autopilot` opens a transport URL (``udpout:127.0.0.1:14550``,
-``serial:/dev/pts/3:921600``, ...) and runs until stopped; :func:`add_arguments` and
-:func:`run_from_args` are what ``tcm-companion mock-autopilot`` calls.
+``serial:/dev/pts/3:921600``, ...) and runs until stopped; :func:`run_from_args` is what
+``tcm-companion mock-autopilot`` calls (its options are defined in
+:func:`tcm_companion.cli.sim.add_mock_autopilot_arguments`, which does not import this
+module, so that ``tcm-companion --help`` stays light).
 """
 
 from __future__ import annotations
@@ -41,7 +43,6 @@ from .mock_autopilot import (
     ParamChanged,
     PeerSeen,
 )
-from .scenarios import SCENARIO_NAMES
 
 __all__ = [
     "LinkDown",
@@ -49,7 +50,6 @@ __all__ = [
     "TransportClosed",
     "TransportError",
     "TransportTimeout",
-    "add_arguments",
     "config_from_args",
     "run_from_args",
     "run_mock_autopilot",
@@ -205,41 +205,8 @@ async def serve_mock_autopilot(
 
 
 # -- command line ------------------------------------------------------------------------
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of ``tcm-companion mock-autopilot``."""
-    parser.add_argument(
-        "--connect",
-        required=True,
-        metavar="URL",
-        help="transport URL, e.g. udpout:127.0.0.1:14550, udpin:0.0.0.0:14550, "
-        "serial:/dev/pts/3:921600",
-    )
-    parser.add_argument(
-        "--scenario", default="T90", type=str.upper, choices=SCENARIO_NAMES, help="flight to fly"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="turbulence and telemetry noise")
-    parser.add_argument("--noise", type=float, default=1.0, help="telemetry noise scale (0: exact)")
-    parser.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default 1)")
-    parser.add_argument(
-        "--ekf-origin-delay",
-        type=float,
-        default=3.0,
-        metavar="S",
-        help="seconds after boot before LOCAL_POSITION_NED exists (ArduPilot SITL: ~40)",
-    )
-    parser.add_argument(
-        "--brake-ttc",
-        type=float,
-        default=3.0,
-        metavar="S",
-        help="brake on a collision-course status with time to contact below this",
-    )
-    parser.add_argument(
-        "--no-brake", action="store_true", help="record collision alarms but do not brake"
-    )
-
-
 def config_from_args(args: argparse.Namespace) -> MockAutopilotConfig:
+    """The mock's configuration from ``tcm-companion mock-autopilot``'s options."""
     return MockAutopilotConfig(
         system_id=args.sysid,
         scenario=args.scenario,

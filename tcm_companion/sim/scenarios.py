@@ -44,6 +44,8 @@ import numpy as np
 
 from ..core.camera import Equirectangular
 from ..core.frames import FloatArray
+from .names import OBJECT_SCENARIO_NAMES, SCENARIO_NAMES
+from .names import PAPER_SCENARIO_NAMES as PAPER_SCENARIO_NAMES  # re-exported
 from .world import (
     COLOURS,
     Ball,
@@ -64,40 +66,6 @@ from .world import (
     track_axes,
     vec3,
 )
-
-#: The paper's flights and the traps around them (red balls only).
-PAPER_SCENARIO_NAMES: tuple[str, ...] = (
-    "TS",
-    "T45",
-    "T90",
-    "RAISED",
-    "INPLANE",
-    "COLLISION",
-    "HEADON",
-    "TWO",
-)
-#: Objects of other kinds, and scenes that make angular size hard.
-OBJECT_SCENARIO_NAMES: tuple[str, ...] = (
-    "TS-BOX",
-    "T45-BOX",
-    "T90-BOX",
-    "TS-CYL",
-    "T45-CYL",
-    "T90-CYL",
-    "TS-DISC",
-    "T45-DISC",
-    "T90-DISC",
-    "RAISED-DISC",
-    "INPLANE-BOX",
-    "COLLISION-CYL",
-    "COLLISION-DISC",
-    "HEADON-BOX",
-    "DARKBG",
-    "BACKLIT",
-    "SKY2TREE",
-    "MIXED",
-)
-SCENARIO_NAMES: tuple[str, ...] = PAPER_SCENARIO_NAMES + OBJECT_SCENARIO_NAMES
 
 FPS = 25.0
 HEADING_RAD = math.radians(25.0)  # the track's direction (clockwise from north)

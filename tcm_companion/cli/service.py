@@ -1,16 +1,19 @@
-"""``tcm-companion run``, ``sitl`` and ``config check``: argument parsing, logging, uvloop.
+"""``tcm-companion run``, ``sitl`` and ``config check``: the service, its simulated runs
+and its configuration.
 
 ``run`` is the service systemd starts: it loads the configuration (CLI ``--set`` >
 environment > file > defaults), builds the camera source, and runs the daemon on uvloop
 until SIGTERM/SIGINT, notifying systemd (READY, STATUS, WATCHDOG, STOPPING). With
 ``[camera] source = "sim"`` there is no vehicle to look at, so ``run`` flies the mock
 autopilot in the same process (SITL) and goes on until stopped.
+
+asyncio and everything beyond the standard library are imported by the commands, not
+here (see :mod:`.common`).
 """
 
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import dataclasses
 import logging
@@ -19,49 +22,24 @@ import signal
 import sys
 from collections.abc import Callable, Coroutine
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..config import AppConfig, ConfigError, config_to_toml, load_config
+from ..sim.names import SCENARIO_NAMES
+from .common import (
+    add_command,
+    add_config_arguments,
+    add_log_level_argument,
+    add_set_argument,
+    config_from_args,
+    setup_logging,
+)
+
+if TYPE_CHECKING:
+    import asyncio
+
+    from ..config import AppConfig
 
 log = logging.getLogger("tcm_companion")
-
-DEFAULT_CONFIG = Path("config.toml")
-
-
-def add_config_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--config", help="config.toml (default: ./config.toml if present, else built-in)"
-    )
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="TABLE.KEY=VALUE",
-        help="override one setting (repeatable; beats TCM_COMPANION__TABLE__KEY and the file)",
-    )
-    p.add_argument(
-        "--log-level",
-        default="INFO",
-        choices=("DEBUG", "INFO", "WARNING", "ERROR"),
-        help="log messages to stderr at this level (journald keeps them under systemd)",
-    )
-
-
-def config_from_args(args: argparse.Namespace) -> AppConfig:
-    path = args.config
-    if path is None and DEFAULT_CONFIG.is_file():
-        path = DEFAULT_CONFIG
-    return load_config(path, environ=os.environ, sets=list(args.set))
-
-
-def _setup_logging(level: str) -> None:
-    # Under systemd stderr goes to the journal, which adds its own time stamps.
-    fmt = (
-        "%(levelname)s %(name)s: %(message)s"
-        if os.environ.get("JOURNAL_STREAM")
-        else "%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
-    logging.basicConfig(level=getattr(logging, level), format=fmt, stream=sys.stderr)
 
 
 def state_dir_for(config: AppConfig) -> Path:
@@ -81,11 +59,15 @@ def _run_loop(main: Callable[[], Coroutine[Any, Any, int]]) -> int:
     try:
         import uvloop
     except ImportError:  # pragma: no cover - uvloop is a dependency; a bare install still runs
+        import asyncio
+
         return asyncio.run(main())
     return uvloop.run(main())
 
 
 def _install_signals(stop: asyncio.Event) -> None:
+    import asyncio
+
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
@@ -117,7 +99,7 @@ class _StatusPrinter:
 
 # -- run ------------------------------------------------------------------------------------
 def cmd_run(args: argparse.Namespace) -> int:
-    _setup_logging(args.log_level)
+    setup_logging(args.log_level)
     config = config_from_args(args)
     from ..io.sdnotify import Notifier, watchdog_interval_us
 
@@ -136,7 +118,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     if config.camera.source.source == "sim":
         log.info("camera source is the simulator: flying the mock autopilot (SITL)")
-        from .logsetup import log_directory
+        from ..service.logsetup import log_directory
 
         log_dir = str(log_directory(config, state)) if config.logging.enabled else None
         # The service's exit status is about the service, not the simulation's accuracy.
@@ -151,9 +133,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         )
 
     async def main_flight() -> int:
+        import asyncio
+
         from ..io.cameras.base import CameraError
         from ..io.cameras.settings import open_source
-        from .daemon import CameraInput, Daemon
+        from ..service.daemon import CameraInput, Daemon
 
         cam = config.camera
         try:
@@ -179,7 +163,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             log.warning("%s", w)
         flight_log = None
         if config.logging.enabled:
-            from .logsetup import log_directory, start_flight_log
+            from ..service.logsetup import log_directory, start_flight_log
 
             log_dir = log_directory(config, state)
             # The parameters in force at start (persisted ones included): replay needs them.
@@ -252,12 +236,10 @@ def write_summary_json(path: str, summary: Any) -> None:
 
 # -- sitl -----------------------------------------------------------------------------------
 def cmd_sitl(args: argparse.Namespace) -> int:
-    _setup_logging(args.log_level)
+    setup_logging(args.log_level)
     config = config_from_args(args)
     if args.autopilot == "ardupilot":
         return _run_ardupilot(args, config)
-    from ..sim.scenarios import SCENARIO_NAMES
-
     if args.scenario and args.scenario not in SCENARIO_NAMES:
         print(
             f"error: --scenario {args.scenario} is not one of the mock autopilot's"
@@ -270,7 +252,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
-    from .sitl import DEFAULT_MIN_ACCURACY
+    from ..service.sitl import DEFAULT_MIN_ACCURACY
 
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
@@ -292,7 +274,7 @@ def _run_sitl_virtual(
     """``sitl --clock virtual``: no event loop; SIGINT/SIGTERM end the simulation early."""
     import threading
 
-    from .sitl import run_sitl_virtual
+    from ..service.sitl import run_sitl_virtual
 
     stop = threading.Event()
     previous = {}
@@ -319,8 +301,8 @@ def _run_sitl_virtual(
 
 def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
     """``sitl --autopilot ardupilot``: real ArduCopter SITL with the applet, one flight."""
+    from ..service.sitl_ardupilot import SCENES
     from ..sim.ardupilot_sitl import skip_reason
-    from .sitl_ardupilot import SCENES
 
     scene = (args.scenario or "CROSSING").lower()
     if scene not in SCENES:
@@ -336,7 +318,7 @@ def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
         return 2
 
     async def main() -> int:
-        from .sitl_ardupilot import run_ardupilot_sitl
+        from ..service.sitl_ardupilot import run_ardupilot_sitl
 
         report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode)
         print("\n".join(report.lines()))
@@ -354,7 +336,9 @@ def _run_sitl_until(
     """SITL on uvloop until ``duration_s`` or SIGINT/SIGTERM; prints the report."""
 
     async def main() -> int:
-        from .sitl import run_sitl
+        import asyncio
+
+        from ..service.sitl import run_sitl
 
         stop = asyncio.Event()
         _install_signals(stop)
@@ -376,38 +360,48 @@ def _run_sitl_until(
 
 # -- config check ---------------------------------------------------------------------------
 def cmd_config_check(args: argparse.Namespace) -> int:
-    try:
-        config = load_config(args.file, environ=os.environ, sets=list(args.set))
-    except ConfigError as exc:
-        print(f"config error: {exc}", file=sys.stderr)
-        return 2
-    print(f"# {args.file}: OK. Effective configuration (CLI > environment > file > defaults):")
+    from ..config import config_to_toml
+
+    config = config_from_args(args)  # a ConfigError is reported by main: exit 2
+    print(f"# {args.config}: OK. Effective configuration (CLI > environment > file > defaults):")
     print(config_to_toml(config))
     return 0
 
 
 def add_parsers(sub: Any) -> None:
     """Register ``run``, ``sitl`` and ``config`` on the main parser's subparsers."""
-    p = sub.add_parser("run", help="the flight daemon (what systemd starts)")
+    p = add_command(
+        sub,
+        "run",
+        "The flight daemon: cameras in, one status per object and frame out on MAVLink, until"
+        ' SIGTERM. With [camera] source = "sim" it flies the mock autopilot in the same'
+        " process.",
+    )
     add_config_arguments(p)
-    p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    add_log_level_argument(p)
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")
     p.add_argument(
-        "--status-every", type=int, default=5, help="status line every N s when not a terminal"
+        "--status-every",
+        type=int,
+        default=5,
+        metavar="N",
+        help="status line every N s when not a terminal (default 5)",
     )
     p.add_argument(
         "--summary-json", metavar="FILE", default=None, help="write the run's summary as JSON"
     )
     p.set_defaults(func=cmd_run)
 
-    from ..sim.scenarios import SCENARIO_NAMES
-
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "sitl",
-        help="the daemon with a simulated camera against the mock autopilot (loopback UDP),"
-        " or against real ArduCopter SITL (--autopilot ardupilot)",
+        "The daemon with a simulated camera against the mock autopilot (loopback UDP, or one"
+        " simulated clock with --clock virtual) or against real ArduCopter SITL (--autopilot"
+        " ardupilot), for a fixed time; then the summary. Exit 1 if the run failed.",
     )
     add_config_arguments(p)
+    add_log_level_argument(p)
     p.add_argument(
         "--autopilot",
         choices=("mock", "ardupilot"),
@@ -431,7 +425,7 @@ def add_parsers(sub: Any) -> None:
         help="ardupilot: the pilot switches to this mode (e.g. LOITER) 1 s after the applet"
         " braked; the applet must stand down",
     )
-    p.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    p.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds (default 20)")
     p.add_argument(
         "--clock",
         choices=("real", "virtual"),
@@ -451,13 +445,24 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument(
-        "--status-every", type=int, default=5, help="status line every N s when not a terminal"
+        "--status-every",
+        type=int,
+        default=5,
+        metavar="N",
+        help="status line every N s when not a terminal (default 5)",
     )
     p.set_defaults(func=cmd_sitl)
 
-    p = sub.add_parser("config", help="configuration tools")
-    csub = p.add_subparsers(dest="config_command", required=True)
-    c = csub.add_parser("check", help="validate a config file and print the effective settings")
-    c.add_argument("file")
-    c.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE")
+    p = add_command(sub, "config", "Configuration tools: config check FILE.")
+    csub = p.add_subparsers(dest="config_command", required=True, metavar="COMMAND", help="check")
+    c = add_command(
+        csub,
+        "check",
+        help="validate a config file and print the effective settings",
+        description="Validate a config file with the environment (TCM_COMPANION__TABLE__KEY) and --set"
+        " applied, and print the effective configuration as TOML. Errors name the file, table"
+        " and key, and the variable or flag that set a bad value (exit 2).",
+    )
+    c.add_argument("config", metavar="FILE", help="the config.toml to check")
+    add_set_argument(c)
     c.set_defaults(func=cmd_config_check)

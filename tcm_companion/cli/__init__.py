@@ -1,0 +1,107 @@
+"""Command line: ``tcm-companion <command>`` (:func:`main`, the console script).
+
+One module per group of commands, each with ``add_parsers(sub)`` and its ``cmd_*``
+functions: :mod:`.service` (``run``, ``sitl``, ``config check``), :mod:`.replay`,
+:mod:`.evaluate` (``eval``, ``demo``), :mod:`.bench`, :mod:`.logs` (``export``,
+``import``, ``plot``) and :mod:`.sim` (``sim export``, ``sim list``, ``mock-autopilot``);
+:mod:`.common` holds what they share, above all the one configuration loader
+(:func:`~.common.add_config_arguments`, :func:`~.common.config_from_args`).
+
+Building the parser imports the standard library and light constants only
+(``tcm-companion --help`` in well under half a second; ``tests/test_cli.py`` checks that
+numpy, OpenCV, SciPy, matplotlib, mcap and the MAVLink dialect stay unimported): every
+command imports what it needs when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .. import __version__
+from . import bench, evaluate, logs, replay, service, sim
+from .common import config_from_args
+
+__all__ = ["build_parser", "config_from_args", "main"]
+
+DESCRIPTION = """\
+The drone companion computer's service: tells the flight controller, 25 times a second,
+whether each object its cameras see is moving or stationary (Triangle Closure Method)
+and how soon it would hit.
+
+commands:
+  run             the flight daemon (what systemd starts)
+  sitl            the daemon against the mock autopilot and a simulated camera, or
+                  against real ArduCopter SITL (--autopilot ardupilot); then a summary
+  config check    validate a config file and print the effective settings
+  replay          a tcm-scenario/1 directory or a flight log through the core -> results CSV
+  eval            accuracy, coverage and ROC of TCM/ECM/BSM/fused against truth, with plots
+  demo            simulate the paper's flights TS/T45/T90 and print its evaluation
+  bench           per-stage time per frame; --mavlink: the link; --daemon: the service
+  export          flight log -> tcm-scenario/1 directory (frames + .tlog)
+  import          tcm-scenario/1 directory -> flight log (.mcap)
+  plot            PNG plots of a flight log or a scenario
+  sim export      render a simulated scenario as a tcm-scenario/1 directory
+  sim list        list the simulated scenarios
+  mock-autopilot  an ArduPilot-like MAVLink vehicle flying a simulated scenario
+
+Every command that reads the configuration (run, sitl, config check, replay, eval, demo,
+bench, import --results, plot) takes it the same way: --set TABLE.KEY=VALUE (repeatable)
+> environment TCM_COMPANION__TABLE__KEY=VALUE > --config FILE (default ./config.toml if
+present) > built-in defaults.
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tcm-companion",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=__version__)
+    # The description lists the commands (argparse's own list would repeat it).
+    sub = parser.add_subparsers(
+        dest="command",
+        required=True,
+        metavar="COMMAND",
+        help="one of the commands above; tcm-companion COMMAND --help shows its options",
+    )
+    service.add_parsers(sub)  # run, sitl, config
+    replay.add_parsers(sub)
+    evaluate.add_parsers(sub)  # eval, demo
+    bench.add_parsers(sub)
+    logs.add_parsers(sub)  # export, import, plot
+    sim.add_parsers(sub)  # sim, mock-autopilot
+    return parser
+
+
+def _error_message(exc: BaseException) -> str | None:
+    """What ``main`` prints for an expected error (exit 2), None for a bug (re-raised)."""
+    from ..config import ConfigError
+
+    if isinstance(exc, ConfigError):
+        return f"config error: {exc}"
+    if isinstance(exc, OSError):
+        return f"error: {exc}"
+    from ..io.scenario import ScenarioError
+    from ..logtools.convert import LogConversionError
+    from ..replay_log import LogReplayError
+
+    if isinstance(exc, ScenarioError | LogConversionError | LogReplayError):
+        return f"error: {exc}"
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from ..io.allocator import tune_allocator
+
+    tune_allocator()
+    try:
+        return int(args.func(args))
+    except (ValueError, OSError) as exc:
+        message = _error_message(exc)
+        if message is None:
+            raise
+        print(message, file=sys.stderr)
+        return 2

@@ -1,0 +1,84 @@
+"""``tcm-companion bench``: per-stage time per frame, the MAVLink link, the running daemon."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from .common import (
+    add_command,
+    add_config_arguments,
+    add_quiet_argument,
+    config_from_args,
+    resolution,
+)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.mavlink:
+        from ..bench import run_mavlink_bench
+
+        print(run_mavlink_bench())
+        return 0
+    if args.daemon:
+        if args.config is not None:
+            print(
+                "error: bench --daemon runs the daemon with ./config.toml (if present), the"
+                " environment and the bench's own settings; give yours with --set, not --config",
+                file=sys.stderr,
+            )
+            return 2
+        from ..service.daemon_bench import print_daemon_bench, run_daemon_bench
+
+        print_daemon_bench(run_daemon_bench(args.duration, extra_sets=tuple(args.set)))
+        return 0
+    from ..bench import run_bench
+
+    config = config_from_args(args)
+    print(run_bench(config, args.resolutions or [(360, 220), (900, 550)], args.frames))
+    return 0
+
+
+def add_parsers(sub: Any) -> None:
+    p = add_command(
+        sub,
+        "bench",
+        "Time every stage per frame on one core at 360x220 and 900x550 for each method"
+        " (median and p99, BSM/TCM ratio); or, with --mavlink, the MAVLink encode cost and"
+        " link latency; or, with --daemon, the running service's latency, CPU and memory.",
+    )
+    add_config_arguments(p, what="; not with --daemon (give --set, passed to the daemon)")
+    add_quiet_argument(p)
+    p.add_argument(
+        "--resolutions",
+        type=resolution,
+        nargs="+",
+        metavar="WxH",
+        help="image sizes to time (default 360x220 900x550)",
+    )
+    p.add_argument(
+        "--frames",
+        type=int,
+        default=200,
+        metavar="N",
+        help="frames timed per resolution and method (default 200)",
+    )
+    p.add_argument(
+        "--mavlink",
+        action="store_true",
+        help="instead: MAVLink encode cost and link latency (pty via socat, UDP)",
+    )
+    p.add_argument(
+        "--daemon",
+        action="store_true",
+        help="instead: the running service's latency, CPU and memory (own process, 25 Hz)",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="--daemon: seconds to run (default 60)",
+    )
+    p.set_defaults(func=cmd_bench)

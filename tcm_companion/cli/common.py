@@ -1,0 +1,133 @@
+"""What the commands share: the configuration's arguments and its one loader, logging,
+progress bars, image sizes and the light constants the parser offers as choices.
+
+Everything here imports only the standard library at module level: building the parser
+(``tcm-companion --help``) must not pull in numpy, OpenCV, SciPy or the MAVLink dialect.
+The configuration itself (:mod:`tcm_companion.config` imports the pipeline) is loaded by
+:func:`config_from_args`, when a command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..config import AppConfig
+
+#: Read when ``--config`` is not given and the file exists (else the built-in defaults).
+DEFAULT_CONFIG = Path("config.toml")
+
+#: The decision methods (``tcm_companion.core.classify.METHODS``; a test keeps them equal).
+METHODS: tuple[str, ...] = ("tcm", "ecm", "bsm", "fused")
+
+#: The simulator's camera presets (``tcm_companion.sim.cameras.PRESETS``; a test keeps them
+#: equal).
+CAMERA_PRESETS: tuple[str, ...] = ("panorama", "pinhole", "fisheye")
+
+FORCE_HELP = (
+    "replace the output if it exists (it is written beside it and renamed into place when complete)"
+)
+
+CONFIG_EPILOG = (
+    "Configuration: --set TABLE.KEY=VALUE > environment TCM_COMPANION__TABLE__KEY=VALUE >"
+    " --config FILE (default ./config.toml if present) > built-in defaults."
+)
+
+
+def add_command(sub: Any, name: str, description: str, help: str | None = None) -> Any:
+    """A command whose ``--help`` says what it does (``description``). The top level
+    lists its commands in its own description; a group's subcommands (``sim export``,
+    ``config check``) are listed by argparse with their one-line ``help``."""
+    if help is None:
+        return sub.add_parser(name, description=description)
+    return sub.add_parser(name, help=help, description=description)
+
+
+def add_set_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="TABLE.KEY=VALUE",
+        help="override one setting (repeatable; beats TCM_COMPANION__TABLE__KEY and the file)",
+    )
+
+
+def add_config_arguments(p: argparse.ArgumentParser, *, what: str = "") -> None:
+    """``--config`` and ``--set``, read by :func:`config_from_args` (every command that
+    uses the configuration takes both, and the environment, the same way)."""
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        help="config.toml (default: ./config.toml if present, else built-in)" + what,
+    )
+    add_set_argument(p)
+    if p.epilog is None:
+        p.epilog = CONFIG_EPILOG
+
+
+def config_from_args(args: argparse.Namespace) -> AppConfig:
+    """The configuration a command runs with: ``--set`` > environment
+    (``TCM_COMPANION__TABLE__KEY``) > ``--config`` (or ./config.toml) > defaults."""
+    from ..config import load_config
+
+    path = args.config
+    if path is None and DEFAULT_CONFIG.is_file():
+        path = DEFAULT_CONFIG
+    return load_config(path, environ=os.environ, sets=list(args.set))
+
+
+def add_log_level_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--log-level",
+        default="INFO",
+        choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+        help="log messages to stderr at this level (journald keeps them under systemd)",
+    )
+
+
+def setup_logging(level: str) -> None:
+    # Under systemd stderr goes to the journal, which adds its own time stamps.
+    fmt = (
+        "%(levelname)s %(name)s: %(message)s"
+        if os.environ.get("JOURNAL_STREAM")
+        else "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    logging.basicConfig(level=getattr(logging, level), format=fmt, stream=sys.stderr)
+
+
+def add_quiet_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+
+def progress(total: int, desc: str, enabled: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(
+        total=total, desc=desc, unit="frame", disable=not enabled, leave=False, file=sys.stderr
+    )
+
+
+def resolution(text: str) -> tuple[int, int]:
+    """``argparse`` type of an image size: ``360x220`` -> ``(360, 220)``."""
+    try:
+        w, h = text.lower().split("x")
+        size = int(w), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"resolution must look like 360x220, got {text!r}"
+        ) from None
+    if min(size) <= 0:
+        raise argparse.ArgumentTypeError(f"resolution must be positive, got {text!r}")
+    return size
+
+
+def is_log(path: str) -> bool:
+    """A flight log: an ``.mcap`` file or a directory of ``tcm-*.mcap`` parts."""
+    p = Path(path)
+    return p.suffix == ".mcap" or (p.is_dir() and any(p.glob("tcm-*.mcap")))

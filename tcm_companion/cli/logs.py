@@ -1,0 +1,107 @@
+"""``tcm-companion export``, ``import`` and ``plot``: flight logs and scenarios, both ways."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from .common import FORCE_HELP, add_command, add_config_arguments, config_from_args, is_log
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from ..io.outputs import atomic_path
+    from ..logtools.convert import log_to_scenario
+
+    with atomic_path(args.scenario, force=args.force, is_dir=True) as tmp:
+        log_to_scenario(args.log, tmp, camera_id=args.camera_id)
+    print(f"{args.log} -> {args.scenario}")
+    return 0
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from ..io.outputs import atomic_path
+    from ..logtools.convert import scenario_to_log
+
+    config = config_from_args(args) if args.results else None
+    with atomic_path(args.log, force=args.force) as tmp:
+        scenario_to_log(
+            args.scenario,
+            tmp,
+            image_format=args.image_format,
+            results=args.results,
+            config=config,
+        )
+    print(f"{args.scenario} -> {args.log}")
+    return 0
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from ..logtools.plot import plot_log, plot_scenario
+
+    if is_log(args.source):
+        paths = plot_log(args.source, args.out)
+    else:
+        paths = plot_scenario(args.source, args.out, config_from_args(args))
+    for p in paths:
+        print(p)
+    for name, why in getattr(paths, "skipped", {}).items():
+        print(f"skipped {name}: {why}", file=sys.stderr)
+    return 0
+
+
+def add_parsers(sub: Any) -> None:
+    p = add_command(
+        sub,
+        "export",
+        "Convert a flight log to a tcm-scenario/1 directory: its frames and a .tlog of its"
+        " MAVLink traffic (MAVProxy and MAVExplorer open it).",
+    )
+    p.add_argument("log", help="flight log file or directory")
+    p.add_argument("--scenario", required=True, metavar="DIR", help="scenario directory to write")
+    p.add_argument("--force", action="store_true", help=FORCE_HELP)
+    p.add_argument(
+        "--camera-id",
+        type=int,
+        default=0,
+        metavar="N",
+        help="which camera's frames to export (default 0)",
+    )
+    p.set_defaults(func=cmd_export)
+
+    p = add_command(
+        sub,
+        "import",
+        "Convert a tcm-scenario/1 directory to a flight log (MCAP); with --results also"
+        " replay it and log each frame's results.",
+    )
+    add_config_arguments(p, what="; the --results replay")
+    p.add_argument("scenario", help="scenario directory")
+    p.add_argument("--log", required=True, metavar="FILE", help="MCAP file to write")
+    p.add_argument("--force", action="store_true", help=FORCE_HELP)
+    p.add_argument(
+        "--image-format",
+        choices=("png", "jpeg"),
+        default="png",
+        help="how frames are stored: png (lossless, exact replay; default) or jpeg",
+    )
+    p.add_argument(
+        "--results",
+        action="store_true",
+        help="also replay the scenario and log /tcm/result (for plots and the Foxglove layout)",
+    )
+    p.set_defaults(func=cmd_import)
+
+    p = add_command(
+        sub,
+        "plot",
+        "PNG plots of a flight log or a scenario (replayed): disparity against the threshold,"
+        " bearings, time to contact, egomotion quality, latency, attitude and health, with"
+        " the truth when a scenario has it.",
+    )
+    add_config_arguments(p, what="; a scenario's replay (a flight log is plotted as flown)")
+    p.add_argument("source", help="flight log (file or directory) or scenario directory")
+    p.add_argument(
+        "--out", default="out/plots", metavar="DIR", help="folder for the PNGs (default out/plots)"
+    )
+    p.set_defaults(func=cmd_plot)

@@ -1,0 +1,189 @@
+"""``tcm-companion sim export``, ``sim list`` and ``mock-autopilot``: the simulator.
+
+The mock autopilot's options are defined here (from the light :mod:`..sim.names`), so
+that building the parser does not import the mock; :func:`~..sim.mock_autopilot_run.\
+run_from_args` runs it.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ..sim.names import SCENARIO_NAMES
+from .common import CAMERA_PRESETS, FORCE_HELP, add_command, resolution
+
+
+def _camera_arg(args: argparse.Namespace) -> Any:
+    if args.camera is None:
+        return None
+    from ..sim.cameras import preset_camera
+
+    return preset_camera(args.camera, args.resolution, args.name)
+
+
+def cmd_sim_export(args: argparse.Namespace) -> int:
+    from ..io.outputs import atomic_path
+    from ..sim import make_scenario
+    from ..sim.export import export_scenario
+
+    camera = _camera_arg(args)
+    sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)
+    if camera is None and args.resolution is not None:
+        sim = make_scenario(
+            args.name,
+            camera=sim.camera.scaled(*args.resolution),
+            duration_s=args.duration,
+            seed=args.seed,
+        )
+    with atomic_path(args.dir, force=args.force, is_dir=True) as tmp:
+        export_scenario(sim, tmp, detections=args.detections or None)
+    print(
+        f"wrote {sim.name}: {sim.n_frames} frames, {sim.camera.model_name} "
+        f"{sim.camera.width}x{sim.camera.height} -> {args.dir}"
+    )
+    return 0
+
+
+def cmd_sim_list(_args: argparse.Namespace) -> int:
+    from ..sim.scenarios import describe_scenario
+
+    for name in SCENARIO_NAMES:
+        print(f"{name:<15} {describe_scenario(name)}")
+    return 0
+
+
+def cmd_mock_autopilot(args: argparse.Namespace) -> int:
+    from ..sim.mock_autopilot_run import run_from_args
+
+    return run_from_args(args)
+
+
+def add_mock_autopilot_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``tcm-companion mock-autopilot`` (read by
+    :func:`tcm_companion.sim.mock_autopilot_run.config_from_args`)."""
+    parser.add_argument(
+        "--connect",
+        required=True,
+        metavar="URL",
+        help="transport URL, e.g. udpout:127.0.0.1:14550, udpin:0.0.0.0:14550, "
+        "serial:/dev/pts/3:921600, tcp:HOST:PORT",
+    )
+    parser.add_argument(
+        "--scenario",
+        default="T90",
+        type=str.upper,
+        choices=SCENARIO_NAMES,
+        metavar="NAME",
+        help=f"flight to fly: {', '.join(SCENARIO_NAMES)} (default T90)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        metavar="N",
+        help="seed of the turbulence and telemetry noise",
+    )
+    parser.add_argument(
+        "--noise",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="telemetry noise scale (default 1; 0: exact)",
+    )
+    parser.add_argument(
+        "--sysid", type=int, default=1, metavar="N", help="MAVLink system id (default 1)"
+    )
+    parser.add_argument(
+        "--ekf-origin-delay",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="seconds after boot before LOCAL_POSITION_NED exists (ArduPilot SITL: ~40)",
+    )
+    parser.add_argument(
+        "--brake-ttc",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="brake on a collision-course status with time to contact below this",
+    )
+    parser.add_argument(
+        "--no-brake", action="store_true", help="record collision alarms but do not brake"
+    )
+
+
+def add_parsers(sub: Any) -> None:
+    p = add_command(
+        sub,
+        "sim",
+        "The built-in simulator: render a scenario as a tcm-scenario/1 directory, or list"
+        " the scenarios.",
+    )
+    ssub = p.add_subparsers(
+        dest="sim_command", required=True, metavar="COMMAND", help="export or list"
+    )
+    e = add_command(
+        ssub,
+        "export",
+        help="write a simulated scenario as a tcm-scenario/1 directory",
+        description="Render a simulated scenario and write it as a tcm-scenario/1 directory (frames,"
+        " telemetry.tlog, truth.csv; with --detections also the simulated detector's boxes).",
+    )
+    e.add_argument(
+        "name",
+        type=str.upper,
+        choices=SCENARIO_NAMES,
+        metavar="NAME",
+        help="scenario name (see: tcm-companion sim list)",
+    )
+    e.add_argument("dir", help="output directory")
+    e.add_argument("--force", action="store_true", help=FORCE_HELP)
+    e.add_argument(
+        "--detections",
+        action="store_true",
+        help="also write detections.csv: boxes from the simulated detector (jitter, misses,"
+        " false boxes; tcm_companion/sim/detector_sim.py)",
+    )
+    e.add_argument(
+        "--camera",
+        choices=CAMERA_PRESETS,
+        default=None,
+        help="camera preset (default: the paper's panorama, 360x220)",
+    )
+    e.add_argument(
+        "--resolution",
+        type=resolution,
+        default=None,
+        metavar="WxH",
+        help="image size (the same field of view; default: the camera's own)",
+    )
+    e.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="seconds of flight (default: the scenario's)",
+    )
+    e.add_argument(
+        "--seed", type=int, default=0, metavar="N", help="seed of the flight (turbulence, noise)"
+    )
+    e.set_defaults(func=cmd_sim_export)
+    ls = add_command(
+        ssub,
+        "list",
+        help="list the simulated scenarios, one line each",
+        description="List the simulated scenarios, one line each: name and what it shows.",
+    )
+    ls.set_defaults(func=cmd_sim_list)
+
+    p = add_command(
+        sub,
+        "mock-autopilot",
+        "An ArduPilot-like MAVLink vehicle that flies a simulated scenario, honours"
+        " SET_MESSAGE_INTERVAL, answers TIMESYNC, parameters and commands, checks the"
+        " companion's messages and brakes on a collision-course alarm; until SIGINT/SIGTERM"
+        " or the link closes.",
+    )
+    add_mock_autopilot_arguments(p)
+    p.set_defaults(func=cmd_mock_autopilot)

@@ -1,0 +1,45 @@
+"""The simulated scenarios' names, and nothing else: light enough for the command line's
+``choices`` and help (``tcm-companion --help`` must not import numpy or the renderer).
+
+:mod:`.scenarios` designs each of them (:func:`~.scenarios.describe_scenario` says in
+one line what each shows); ``docs/simulator.md`` lists them.
+"""
+
+from __future__ import annotations
+
+#: The paper's flights and the traps around them (red balls only).
+PAPER_SCENARIO_NAMES: tuple[str, ...] = (
+    "TS",
+    "T45",
+    "T90",
+    "RAISED",
+    "INPLANE",
+    "COLLISION",
+    "HEADON",
+    "TWO",
+)
+#: Objects of other kinds, and scenes that make angular size hard.
+OBJECT_SCENARIO_NAMES: tuple[str, ...] = (
+    "TS-BOX",
+    "T45-BOX",
+    "T90-BOX",
+    "TS-CYL",
+    "T45-CYL",
+    "T90-CYL",
+    "TS-DISC",
+    "T45-DISC",
+    "T90-DISC",
+    "RAISED-DISC",
+    "INPLANE-BOX",
+    "COLLISION-CYL",
+    "COLLISION-DISC",
+    "HEADON-BOX",
+    "DARKBG",
+    "BACKLIT",
+    "SKY2TREE",
+    "MIXED",
+)
+#: Every scenario the simulator (and the mock autopilot) can fly.
+SCENARIO_NAMES: tuple[str, ...] = PAPER_SCENARIO_NAMES + OBJECT_SCENARIO_NAMES
+
+__all__ = ["OBJECT_SCENARIO_NAMES", "PAPER_SCENARIO_NAMES", "SCENARIO_NAMES"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import platform
 import resource
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -55,7 +55,7 @@ def _time_method(
         telemetry = sim.telemetry  # type: ignore[attr-defined]
         n_frames = len(frames)
 
-        def iter_frames(self):  # type: ignore[no-untyped-def]
+        def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
             for f in frames:
                 if gap_s > 0:
                     time.sleep(gap_s)
@@ -90,7 +90,7 @@ def run_bench(
         _time_method(config, sim, frames[:60])
         medians = {}
         for method in ("tcm", "ecm", "fused", "bsm"):
-            cfg = with_method(config, method)  # type: ignore[arg-type]
+            cfg = with_method(config, method)
             t = _time_method(cfg, sim, frames)
             medians[method] = float(np.median(t["total"]))
             cells = [f"{np.median(t[s]):6.2f}/{np.percentile(t[s], 99):6.2f}" for s in STAGES]
@@ -119,7 +119,7 @@ def endpoint_encode_cost_us(n: int = 2000, objects: int = 4) -> dict[str, float]
     ep = CompanionEndpoint(now_us=0)
     objs = []
     for k in range(objects):
-        b = bearing_from_azel(np.radians(20.0 * k), 0.0)
+        b = bearing_from_azel(np.radians(20.0 * k), np.zeros(()))
         c = Classification("moving", "", disparity=0.3)
         objs.append(
             ObjectResult(

@@ -35,7 +35,7 @@ lock:
 	@echo "make: resolving $(LOCK) from pyproject.toml with $(UV) (~10 s)"
 	@tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && \
 	$(PYTHON) -m venv "$$tmp" && "$$tmp/bin/python" -m pip install --quiet '$(UV)' && \
-	"$$tmp/bin/uv" pip compile pyproject.toml --extra dev --group bootstrap \
+	"$$tmp/bin/uv" pip compile pyproject.toml --extra dev --extra tools --group bootstrap \
 	    --universal --fork-strategy fewest --python-version 3.11 --generate-hashes \
 	    --custom-compile-command 'make lock' --quiet $(LOCK_FLAGS) -o $(LOCK)
 

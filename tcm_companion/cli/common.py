@@ -101,16 +101,19 @@ def setup_logging(level: str) -> None:
     logging.basicConfig(level=getattr(logging, level), format=fmt, stream=sys.stderr)
 
 
+#: Plots and progress bars come with the ``tools`` extra (the drone's install leaves it out).
+TOOLS_HINT = "matplotlib is not installed: pip install 'tcm-companion[tools]' (make installs it)"
+
+
 def add_quiet_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
 
 def progress(total: int, desc: str, enabled: bool) -> Any:
-    from tqdm import tqdm
+    """Progress of ``total`` frames on stderr (tqdm's bar, or plain lines without it)."""
+    from ..io.progress import progress as bar
 
-    return tqdm(
-        total=total, desc=desc, unit="frame", disable=not enabled, leave=False, file=sys.stderr
-    )
+    return bar(total, desc, enabled)
 
 
 def resolution(text: str) -> tuple[int, int]:

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 from ..sim.names import SCENARIO_NAMES
 from .common import (
     CAMERA_PRESETS,
+    TOOLS_HINT,
     add_command,
     add_config_arguments,
     add_quiet_argument,
@@ -57,8 +58,15 @@ def run_evaluation(
     progress_bars: bool = True,
 ) -> str:
     """Evaluate scenarios at each resolution; return the printable report (and write plots
-    into ``out_dir`` unless it is None)."""
+    into ``out_dir`` unless it is None, or matplotlib, of the ``tools`` extra, is missing)."""
+    import importlib.util
+
     from ..eval.evaluate import at_resolution, evaluate_scenario, summarize
+
+    no_plots = ""
+    if out_dir is not None and importlib.util.find_spec("matplotlib") is None:
+        no_plots = f"no plots in {out_dir}/: {TOOLS_HINT}"
+        out_dir = None
     from ..eval.report import (
         methods_table,
         per_scenario_table,
@@ -113,6 +121,8 @@ def run_evaluation(
             plot_separation(sep, out_dir / "separation.png")
     if out_dir is not None:
         parts += ["", f"plots written to {out_dir}/"]
+    elif no_plots:
+        parts += ["", no_plots]
     return "\n".join(parts)
 
 
@@ -133,6 +143,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         with_bsm=not args.no_bsm,
         progress_bars=not args.quiet,
     )
+    out.mkdir(parents=True, exist_ok=True)
     (out / "report.txt").write_text(report + "\n")
     print(report)
     print(f"report written to {out / 'report.txt'}")

@@ -6,7 +6,14 @@ import argparse
 import sys
 from typing import Any
 
-from .common import FORCE_HELP, add_command, add_config_arguments, config_from_args, is_log
+from .common import (
+    FORCE_HELP,
+    TOOLS_HINT,
+    add_command,
+    add_config_arguments,
+    config_from_args,
+    is_log,
+)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -37,7 +44,13 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from ..logtools.plot import plot_log, plot_scenario
+    try:
+        from ..logtools.plot import plot_log, plot_scenario
+    except ImportError as exc:
+        if getattr(exc, "name", "") and str(exc.name).startswith("matplotlib"):
+            print(f"error: plot: {TOOLS_HINT}", file=sys.stderr)
+            return 2
+        raise
 
     if is_log(args.source):
         paths = plot_log(args.source, args.out)

@@ -310,9 +310,9 @@ def export_scenario(
     show = progress if progress is not None else sim.n_frames > 50
     indices: Iterable[int] = range(sim.n_frames)
     if show:
-        from tqdm import tqdm
+        from ..io.progress import track
 
-        indices = tqdm(indices, total=sim.n_frames, desc=f"rendering {sim.name}", unit="frame")
+        indices = track(indices, sim.n_frames, f"rendering {sim.name}")
     truth_boxes: list[list[TrueBox]] = []
     for i in indices:
         if det_config is None:

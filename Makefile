@@ -53,7 +53,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check tcm_companion tests tools
 
 typecheck: $(STAMP)
-	$(BIN)/mypy tcm_companion/core tcm_companion/service tcm_companion/io/cameras tcm_companion/io/sdnotify.py
+	$(BIN)/mypy tcm_companion/core tcm_companion/service tcm_companion/cli tcm_companion/io/cameras tcm_companion/io/sdnotify.py
 
 ## MAVProxy's own venv (.venv-interop) for tests/test_interop.py: built once, then cached.
 interop-env: $(STAMP)

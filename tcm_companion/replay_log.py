@@ -22,6 +22,7 @@ bit-exact by default; ``rel_tol`` accepts such rounding differences in the dispa
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import tomllib
@@ -60,14 +61,55 @@ def _metadata(path: Path) -> dict[str, str]:
     return meta
 
 
+#: Settings counted in frames before the method's time base moved to seconds, and the
+#: keys that replaced them: (table, old key) -> (new key, frames -> seconds at ``fps``).
+_FRAME_KEYS: dict[tuple[str, str], tuple[str, Any]] = {
+    ("classifier", "frame_interval"): ("interval_s", lambda n, fps: n / fps),
+    ("classifier", "extra_intervals"): ("extra_intervals_s", lambda v, fps: [n / fps for n in v]),
+    ("classifier", "hold_frames"): ("hold_s", lambda n, fps: n / fps),
+    ("classifier", "min_frame_interval"): ("min_interval_s", lambda n, fps: n / fps),
+    ("classifier", "frame_tolerance"): ("interval_tolerance_s", lambda n, fps: n / fps),
+    ("ttc", "window_frames"): ("window_s", lambda n, fps: n / fps),
+    ("ttc", "min_frames"): ("min_span_s", lambda n, fps: max(n - 1, 1) / fps),
+    ("tracking", "history_frames"): ("history_s", lambda n, fps: n / fps),
+}
+_FRAME_PARAMS = {"TCM_INTERVAL": "TCM_INTERVAL_S", "TCM_HOLD": "TCM_HOLD_S"}
+
+
+def from_frame_counts(
+    doc: dict[str, Any], params: dict[str, float]
+) -> tuple[dict[str, Any], dict[str, float]]:
+    """A configuration and parameters written before the time base moved to seconds
+    (``frame_interval``, ``TCM_HOLD``, ...), in today's keys at the log's camera rate
+    (``[camera] fps``, else 25 Hz: the paper's and the daemon's default then). Newer
+    ones come back unchanged."""
+    fps = float(doc.get("camera", {}).get("fps", 25.0) or 25.0)
+    out = copy.deepcopy(doc)
+    # the pipeline's tables, at the top (config.toml) or under [pipeline] (config check)
+    holders = [out] + ([out["pipeline"]] if isinstance(out.get("pipeline"), dict) else [])
+    for (table, old), (new, convert) in _FRAME_KEYS.items():
+        for holder in holders:
+            section = holder.get(table)
+            if isinstance(section, dict) and old in section:
+                section[new] = convert(section.pop(old), fps)
+    new_params = {_FRAME_PARAMS.get(k, k): v for k, v in params.items()}
+    for old, new in _FRAME_PARAMS.items():
+        if old in params:
+            new_params[new] = params[old] / fps
+    return out, new_params
+
+
 def log_config(path: str | Path) -> tuple[AppConfig, dict[str, float]]:
-    """The configuration and the parameter values in force when the log started."""
+    """The configuration and the parameter values in force when the log started (a log
+    written before the time base moved to seconds is read in today's keys)."""
     meta = _metadata(Path(path))
     try:
-        config = config_from_dict(tomllib.loads(meta.get("config", "")), f"{path}: metadata")
+        doc = tomllib.loads(meta.get("config", ""))
     except tomllib.TOMLDecodeError as exc:
         raise LogReplayError(f"{path}: metadata config is not TOML: {exc}") from None
     params = {k: float(v) for k, v in json.loads(meta.get("params", "{}")).items()}
+    doc, params = from_frame_counts(doc, params)
+    config = config_from_dict(doc, f"{path}: metadata")
     return config, params
 
 

@@ -17,9 +17,12 @@ def test_shipped_config_is_the_builtin_default() -> None:
 
 
 def test_degrees_and_nested_tables() -> None:
-    cfg = config_from_dict({"classifier": {"min_theta_deg": 20.0, "extra_intervals": [12, 40]}})
+    cfg = config_from_dict(
+        {"classifier": {"min_theta_deg": 20.0, "extra_intervals_s": [0.48, 1.6]}}
+    )
     assert cfg.pipeline.classifier.min_theta_rad == pytest.approx(math.radians(20.0))
-    assert cfg.pipeline.classifier.extra_intervals == (12, 40)
+    assert cfg.pipeline.classifier.extra_intervals_s == (0.48, 1.6)
+    assert cfg.pipeline.classifier.intervals_s == (1.6, 1.0, 0.48)
     cfg = config_from_dict(
         {"pipeline": {"egomotion_source": "vision"}, "detection": {"seed_hue_deg": [-10, 10]}}
     )
@@ -33,9 +36,15 @@ def test_degrees_and_nested_tables() -> None:
         ({"classifier": {"treshold": 0.1}}, r"\[classifier\]: unknown key 'treshold'"),
         ({"classifier": {"method": "magic"}}, r"\[classifier\] method must be one of"),
         (
-            {"classifier": {"frame_interval": 2.5}},
-            r"\[classifier\] frame_interval must be an integer",
+            {"classifier": {"interval_s": "long"}},
+            r"\[classifier\] interval_s must be a number",
         ),
+        ({"classifier": {"interval_s": 0}}, r"\[classifier\]: interval_s must be > 0"),
+        ({"classifier": {"hold_s": -0.1}}, r"\[classifier\]: hold_s must be >= 0"),
+        # The frame counts of earlier versions are refused, not misread.
+        ({"classifier": {"frame_interval": 25}}, r"\[classifier\]: unknown key 'frame_interval'"),
+        ({"ttc": {"window_frames": 12}}, r"\[ttc\]: unknown key 'window_frames'"),
+        ({"tracking": {"history_s": 0.0}}, r"\[tracking\]: history_s must be > 0"),
         ({"pipeline": {"bsm_enabled": "yes"}}, r"bsm_enabled must be true or false"),
         ({"tracking": {"gate_deg": "wide"}}, r"gate_deg must be a number of degrees"),
         ({"cameras": {}}, r"unknown table \[cameras\]"),
@@ -92,7 +101,7 @@ def test_precedence_cli_over_environment_over_file(tmp_path: Path) -> None:
     assert cfg.mavlink.url == "serial:/dev/ttyAMA0:921600"
     assert cfg.camera.source.source == "device"
     # Defaults stay for what nobody set.
-    assert cfg.pipeline.classifier.frame_interval == AppConfig().pipeline.classifier.frame_interval
+    assert cfg.pipeline.classifier.interval_s == AppConfig().pipeline.classifier.interval_s
 
 
 def test_override_errors_name_the_variable_or_flag(tmp_path: Path) -> None:

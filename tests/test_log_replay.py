@@ -285,3 +285,41 @@ if __name__ == "__main__":
     # python -m tests.test_log_replay: this install's numeric environment, as the
     # "environment" of a reference's NAME.env.json (tests/data/logs/README.md).
     print(json.dumps(numeric_environment(), indent=2))
+
+
+def test_logs_written_in_frame_counts_replay_in_seconds() -> None:
+    """A log written before the time base moved to seconds stores frame counts
+    (``frame_interval = 25`` ...) and ``TCM_INTERVAL``/``TCM_HOLD``: read at its camera
+    rate, not refused (the reference log of 2026-11-22 replays within float noise so)."""
+    from tcm_companion.config import config_from_dict
+    from tcm_companion.replay_log import from_frame_counts
+
+    old = {
+        "pipeline": {
+            "classifier": {
+                "frame_interval": 25,
+                "hold_frames": 12,
+                "min_frame_interval": 10,
+                "frame_tolerance": 2,
+                "extra_intervals": [15],
+            },
+            "ttc": {"window_frames": 12, "min_frames": 6},
+            "tracking": {"history_frames": 64},
+        },
+        "camera": {"fps": 25.0},
+    }
+    doc, params = from_frame_counts(
+        old, {"TCM_INTERVAL": 25.0, "TCM_HOLD": 12.0, "TCM_THRESH": 0.1}
+    )
+    cfg = config_from_dict(doc).pipeline
+    assert cfg.classifier.interval_s == pytest.approx(1.0)
+    assert cfg.classifier.hold_s == pytest.approx(0.48)
+    assert cfg.classifier.min_interval_s == pytest.approx(0.4)
+    assert cfg.classifier.interval_tolerance_s == pytest.approx(0.08)
+    assert list(cfg.classifier.extra_intervals_s) == [pytest.approx(0.6)]
+    assert cfg.ttc.window_s == pytest.approx(0.48) and cfg.ttc.min_span_s == pytest.approx(0.2)
+    assert cfg.tracking.history_s == pytest.approx(2.56)
+    assert params == {"TCM_INTERVAL_S": 1.0, "TCM_HOLD_S": 0.48, "TCM_THRESH": 0.1}
+    assert old["pipeline"]["classifier"]["frame_interval"] == 25  # the input is not changed
+    new, same = from_frame_counts(doc, {"TCM_HOLD_S": 0.2})
+    assert new == doc and same == {"TCM_HOLD_S": 0.2}  # today's keys pass through

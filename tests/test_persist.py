@@ -17,15 +17,14 @@ def test_params_round_trip_and_apply(tmp_path: Path) -> None:
     assert store.load() == {}
     table = ParamTable()
     assert table.set("TCM_THRESH", 0.12) == pytest.approx(0.12)
-    assert table.set("TCM_INTERVAL", 30.4) == 30.0
-    assert table.set("TCM_INTERVAL", 400) is None and table.set("NOPE", 1) is None
+    assert table.set("TCM_INTERVAL_S", 1.2) == pytest.approx(1.2)
+    assert table.set("TCM_INTERVAL_S", 25) is None and table.set("NOPE", 1) is None
+    assert table.set("TCM_INTERVAL", 25) is None  # the old frame count: unknown now
     store.save(table.values)
     again = ParamTable(ParamStore(tmp_path / "params.json").load())
     assert again.values == table.values
     cfg = config_with_params(PipelineConfig(), again.values)
-    assert (
-        cfg.classifier.tcm_threshold == pytest.approx(0.12) and cfg.classifier.frame_interval == 30
-    )
+    assert cfg.classifier.tcm_threshold == pytest.approx(0.12) and cfg.classifier.interval_s == 1.2
 
 
 def test_corrupt_param_file_is_set_aside(tmp_path: Path) -> None:
@@ -37,9 +36,10 @@ def test_corrupt_param_file_is_set_aside(tmp_path: Path) -> None:
 
 
 def test_out_of_range_stored_values_are_ignored(tmp_path: Path) -> None:
-    table = ParamTable({"TCM_THRESH": 99.0, "TCM_HOLD": 3})
-    assert table.values["TCM_THRESH"] == pytest.approx(0.09) and table.values["TCM_HOLD"] == 3
-    assert table.ignored_initial == ["TCM_THRESH"]
+    table = ParamTable({"TCM_THRESH": 99.0, "TCM_HOLD_S": 0.2, "TCM_HOLD": 3})
+    assert table.values["TCM_THRESH"] == pytest.approx(0.09) and table.values["TCM_HOLD_S"] == 0.2
+    # A frame count stored under the old name is ignored, not read as 3 s.
+    assert table.ignored_initial == ["TCM_THRESH", "TCM_HOLD"]
 
 
 def test_signing_key_forms_and_permissions(tmp_path: Path) -> None:
@@ -81,10 +81,10 @@ def test_make_endpoint_signing_and_params(tmp_path: Path) -> None:
     with pytest.raises(SigningKeyError, match="chmod 600"):
         make_endpoint(settings, 0)
     key.chmod(0o600)
-    (tmp_path / "params.json").write_text('{"TCM_THRESH": 0.15, "TCM_INTERVAL": 999}')
+    (tmp_path / "params.json").write_text('{"TCM_THRESH": 0.15, "TCM_INTERVAL_S": 999}')
     ep, warnings = make_endpoint(settings, 0)
     assert ep.codec.signing is not None and ep.params.values["TCM_THRESH"] == pytest.approx(0.15)
-    assert warnings and "TCM_INTERVAL" in warnings[0]
+    assert warnings and "TCM_INTERVAL_S" in warnings[0]
     ep.codec.mav.signing.timestamp = 4242
     persist(settings, ep)
     again, _ = make_endpoint(settings, 0)

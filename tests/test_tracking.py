@@ -7,12 +7,20 @@ import math
 import numpy as np
 
 from tcm_companion.core.frames import bearing_from_azel
+from tcm_companion.core.timebase import frames_to_cover
 from tcm_companion.core.tracking import Observation, Tracker, TrackerConfig
 
 
-def obs(frame: int, az_deg: float, el_deg: float = 0.0, alpha_deg: float = 3.0) -> Observation:
+def obs(
+    frame: int,
+    az_deg: float,
+    el_deg: float = 0.0,
+    alpha_deg: float = 3.0,
+    t_us: int | None = None,
+) -> Observation:
     b = bearing_from_azel(np.radians(az_deg), np.radians(el_deg))
-    return Observation(frame, frame * 40_000, b, b, b, math.radians(alpha_deg), (0.0, 0.0))
+    t = frame * 40_000 if t_us is None else t_us
+    return Observation(frame, t, b, b, b, math.radians(alpha_deg), (0.0, 0.0))
 
 
 def test_two_objects_keep_their_ids() -> None:
@@ -75,10 +83,35 @@ def test_track_dropped_after_max_misses_and_ids_not_reused() -> None:
     assert tracks[0].track_id == 2
 
 
-def test_history_is_bounded() -> None:
-    tr = Tracker(TrackerConfig(history_frames=10))
+def test_history_is_bounded_in_time_and_in_count() -> None:
+    tr = Tracker(TrackerConfig(history_s=0.4))
     for f in range(25):
         tr.update([obs(f, 10)], f * 40_000)
     t = tr.tracks[0]
-    assert len(t.history) == 10 and t.at_frame(14) is None and t.at_frame(15) is not None
-    assert t.nearest_at_or_before(30, 6) is t.history[-1]
+    # 0.4 s of capture time at 25 Hz: the newest and the ten before it.
+    assert len(t.history) == 11 and t.at_frame(13) is None and t.at_frame(14) is not None
+    assert t.age_s(t.last.t_us) == 24 * 0.040  # the first observation is remembered
+    # At a much higher rate the count bound holds (sized for timebase.MAX_FRAME_RATE_HZ).
+    tr = Tracker(TrackerConfig(history_s=0.4))
+    for f in range(500):
+        tr.update([obs(f, 10, t_us=f * 1_000)], f * 1_000)  # 1000 fps
+    assert len(tr.tracks[0].history) == frames_to_cover(0.4) < 500
+
+
+def test_nearest_in_time_picks_by_capture_time() -> None:
+    tr = Tracker()
+    # 10 fps with one frame missing (t = 0.3 s) and some capture jitter.
+    times_us = [0, 100_000, 200_000, 401_000, 500_000, 600_000]
+    for f, t_us in enumerate(times_us):
+        tr.update([obs(f, 10 + 0.1 * f, t_us=t_us)], t_us)
+    t = tr.tracks[0]
+    assert t.nearest_in_time(400_000, 80_000).t_us == 401_000
+    assert t.nearest_in_time(310_000, 80_000) is None  # nothing within the tolerance
+    assert t.nearest_in_time(310_000, 200_000).t_us == 401_000  # 91 ms vs 110 ms
+    # Equally near either side: the earlier one (the longer pair), also when the later
+    # one is nearer by less than the jitter allowance.
+    assert t.nearest_in_time(150_000, 80_000).t_us == 100_000
+    assert t.nearest_in_time(301_000, 200_000).t_us == 401_000  # 100 ms vs 101 ms
+    assert t.nearest_in_time(301_000, 200_000, prefer_earlier_us=2_000).t_us == 200_000
+    # Never an observation captured after not_after_us.
+    assert t.nearest_in_time(600_000, 120_000, not_after_us=599_999).t_us == 500_000

@@ -14,10 +14,16 @@ R = 0.375
 
 
 def approach(
-    d0: float, speed: float, n: int, lateral_rate: float = 0.0, noise: float = 0.0, seed: int = 0
+    d0: float,
+    speed: float,
+    n: int,
+    lateral_rate: float = 0.0,
+    noise: float = 0.0,
+    seed: int = 0,
+    fps: float = 25.0,
 ):
     rng = np.random.default_rng(seed)
-    t = np.arange(n) / 25.0
+    t = np.arange(n) / fps
     d = d0 - speed * t
     alpha = np.arcsin(R / d) * (1.0 + noise * rng.normal(size=n))
     az = lateral_rate * t
@@ -82,3 +88,32 @@ def test_ttc_confidence_falls_with_noise_and_is_zero_without_ttc() -> None:
     assert min(conf) >= 0.5 - 1e-9
     receding = estimate_ttc(*approach(5.0, -1.0, 12)[:3])
     assert math.isnan(receding.ttc_s) and receding.confidence == 0.0
+
+
+def test_the_window_is_time_not_samples() -> None:
+    """0.48 s of looming, whatever the rate: the same τ from 25, 10 and 5 fps."""
+    cfg = TTCConfig()
+    for fps in (25.0, 10.0, 5.0):
+        t, alpha, b, d = approach(10.0, 2.0, int(3 * fps), fps=fps)
+        est = estimate_ttc(t, alpha, b, cfg)
+        assert est.ttc_s == pytest.approx(d[-1] / 2.0, rel=0.06), fps
+    # At 25 Hz the window holds 12 samples: a wrong radius 13 samples back is not used.
+    t, alpha, b, _ = approach(10.0, 2.0, 30)
+    bad = alpha.copy()
+    bad[:-12] *= 3.0
+    assert estimate_ttc(t, bad, b).ttc_s == estimate_ttc(t, alpha, b).ttc_s
+    # With capture jitter a sample 0.48 s back is still outside (to the nearest frame).
+    t_jit = t + np.where(np.arange(30) == 17, 0.0003, 0.0)
+    assert estimate_ttc(t_jit, bad, b).ttc_s == estimate_ttc(t, alpha, b).ttc_s
+
+
+def test_too_short_a_span_gives_no_estimate() -> None:
+    cfg = TTCConfig()
+    # 25 Hz: 5 samples span 0.16 s (< min_span_s); 6 span 0.2 s.
+    assert math.isnan(estimate_ttc(*approach(10.0, 2.0, 5)[:3], cfg).ttc_s)
+    assert math.isfinite(estimate_ttc(*approach(10.0, 2.0, 6)[:3], cfg).ttc_s)
+    # 5 fps: two samples are too few, three (0.4 s) enough.
+    assert math.isnan(estimate_ttc(*approach(10.0, 2.0, 2, fps=5.0)[:3], cfg).ttc_s)
+    assert math.isfinite(estimate_ttc(*approach(10.0, 2.0, 3, fps=5.0)[:3], cfg).ttc_s)
+    with pytest.raises(ValueError, match="min_span_s"):
+        TTCConfig(window_s=0.2, min_span_s=0.3)

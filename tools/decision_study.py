@@ -19,8 +19,9 @@ from frame ``kmin`` on that got a decision) and the pooled ROC area.
 The last rule, ``a``, also refuses to call a track stationary before it has been seen
 for the full interval (moving may be called from ``kmin``): absence of motion over a
 short interval is weak evidence. The printed table is quoted in docs/decisions.md; it
-is the evidence behind the defaults ``frame_interval = 25, hold_frames = 12,
-min_frame_interval = 10``.
+is the evidence behind the defaults, 25, 12 and 10 frames at the simulator's 25 Hz, now
+stated in seconds: ``interval_s = 1.0, hold_s = 0.48, min_interval_s = 0.4`` (this
+study counts frames at 25 Hz by design; tools/time_base_study.py is about other rates).
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ def record(
     rows = []
     for result in run_replay(sc, cfg, pipe):
         recs, _ = match_frame(result, truth, result.frame_index, ttc)
-        per_k = pipe.disparities_for_intervals(INTERVALS)
+        per_k = pipe.disparities_for_frame_intervals(INTERVALS)
         for r in recs:
             if r.matched:
                 ds = {k: v[r.track_id] for k, v in per_k.items() if r.track_id in v}

@@ -1,11 +1,15 @@
 """Moving / stationary decision for one track: TCM, the ECM and BSM baselines, fused.
 
-The classifier looks back ``frame_interval`` frames (the paper's 25) from the current
-observation, takes the vehicle's translation direction between the two frames, and
-computes the TCM disparity δ and the ECM angle Ω. The decision is ``unknown`` whenever
-the geometry cannot support one, with the reason:
+The classifier looks back ``interval_s`` seconds (the paper's 25 frames at 25 Hz) from the
+current observation, to the track's observation captured nearest that time, takes the
+vehicle's translation direction between the two actual frames, and computes the TCM
+disparity δ and the ECM angle Ω. Every duration is in seconds of capture time, so the
+decision means the same at whatever frame rate the companion manages (see
+:mod:`.timebase`). The decision is ``unknown`` whenever the geometry cannot support one,
+with the reason:
 
-- ``warm-up``: the track is younger than the shortest usable interval;
+- ``warm-up``: the track is younger than the shortest usable interval (or, for a
+  stationary decision, than the full interval);
 - ``lost track``: no detection this frame (the track is coasting);
 - ``no attitude``/``no translation``: egomotion unavailable for the pair;
 - ``small baseline``: the vehicle moved too little between the frames (hover, turnaround);
@@ -32,16 +36,23 @@ State = Literal["moving", "stationary", "unknown"]
 @dataclass(frozen=True)
 class ClassifierConfig:
     method: Method = "tcm"
-    frame_interval: int = 25  # frames between the two observations compared (paper: 25)
-    # More intervals compared at every frame; the largest score decides. A moving object
-    # whose displacement over one interval happens to vanish shows it over another.
-    extra_intervals: tuple[int, ...] = ()
-    # A score counts for this many frames after it was measured: an oscillating object
-    # whose displacement over the interval passes through zero is still moving
+    # Time between the two observations compared, s (paper: 25 frames at 25 Hz). The
+    # reference is the track's observation captured nearest ``interval_s`` earlier.
+    interval_s: float = 1.0
+    # More intervals compared at every frame (s); the largest score decides. A moving
+    # object whose displacement over one interval happens to vanish shows it over another.
+    extra_intervals_s: tuple[float, ...] = ()
+    # A score counts for this long after it was measured (s): an oscillating object whose
+    # displacement over the interval passes through zero is still moving
     # (tools/decision_study.py: T45 80% -> 99.7%, stationary scenarios unchanged).
-    hold_frames: int = 12
-    min_frame_interval: int = 10  # shortest interval used while a track is young
-    frame_tolerance: int = 2  # the earlier observation may be this many frames older
+    hold_s: float = 0.48
+    # Warm-up: a young track may be called moving from a pair this far apart (s), but
+    # stationary only once it has been seen for the whole ``interval_s``.
+    min_interval_s: float = 0.4
+    # The reference observation may be captured this much earlier or later than
+    # ``interval_s`` before the current one (s); outside it the nearest one still serves
+    # (with at least ``min_interval_s``), as a shorter or longer pair.
+    interval_tolerance_s: float = 0.08
     tcm_threshold: float = 0.09  # δ above this: moving (paper's mean optimum)
     ecm_threshold_rad: float = 0.05  # Ω above this: moving
     bsm_threshold: float = 100.0  # supra-threshold pixels around the object: moving
@@ -61,10 +72,32 @@ class ClassifierConfig:
     # to the translation) to be worth reporting: its error is bearing noise / parallax.
     min_range_parallax_rad: float = math.radians(2.0)
 
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.interval_s) and self.interval_s > 0):
+            raise ValueError(f"interval_s must be > 0, got {self.interval_s}")
+        if not all(math.isfinite(k) and k > 0 for k in self.extra_intervals_s):
+            raise ValueError(f"extra_intervals_s must all be > 0, got {self.extra_intervals_s}")
+        if not (math.isfinite(self.min_interval_s) and self.min_interval_s > 0):
+            raise ValueError(f"min_interval_s must be > 0, got {self.min_interval_s}")
+        for name in ("hold_s", "interval_tolerance_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be >= 0, got {value}")
+
     @property
-    def intervals(self) -> tuple[int, ...]:
-        """All intervals compared, longest first (the primary one included)."""
-        return tuple(sorted({self.frame_interval, *self.extra_intervals}, reverse=True))
+    def intervals_s(self) -> tuple[float, ...]:
+        """All intervals compared (s), longest first (the primary one included)."""
+        return tuple(sorted({self.interval_s, *self.extra_intervals_s}, reverse=True))
+
+    @property
+    def longest_interval_s(self) -> float:
+        """The longest interval compared (s)."""
+        return max(self.intervals_s)
+
+    @property
+    def warmup_moving_s(self) -> float:
+        """A track this old (s) may be called moving (never later than the interval)."""
+        return min(self.min_interval_s, self.interval_s)
 
 
 @dataclass(frozen=True)
@@ -78,7 +111,8 @@ class Classification:
     r_geo: float = math.nan
     theta0_rad: float = math.nan
     theta1_rad: float = math.nan
-    interval_frames: int = 0
+    interval_frames: int = 0  # frames processed between the two observations (information)
+    interval_s: float = math.nan  # capture time between the two observations, s
     # Range to the object at the later frame (m), from the sine rule with the autopilot's
     # metric translation: valid for a stationary object only, NaN otherwise.
     range_m: float = math.nan
@@ -101,6 +135,7 @@ def classify_hover(
     alpha1_rad: float,
     config: ClassifierConfig,
     interval_frames: int,
+    interval_s: float = math.nan,
 ) -> Classification:
     """The hover test: with no translation, any change of bearing or size is motion.
 
@@ -111,7 +146,13 @@ def classify_hover(
     r_img = math.sin(alpha1_rad) / math.sin(alpha0_rad)
     delta = math.hypot(r_img - 1.0, float(angle_between(b0_ned, b1_ned)))
     c = Classification(
-        "unknown", "hover", disparity=delta, r_img=r_img, r_geo=1.0, interval_frames=interval_frames
+        "unknown",
+        "hover",
+        disparity=delta,
+        r_img=r_img,
+        r_geo=1.0,
+        interval_frames=interval_frames,
+        interval_s=interval_s,
     )
     return decide(c, config) if config.method in ("tcm", "fused") else c
 
@@ -123,8 +164,8 @@ def fused_score(disparity: float, omega_rad: float, config: ClassifierConfig) ->
     return max(finite) if finite else math.nan
 
 
-def unknown(reason: str, interval_frames: int = 0) -> Classification:
-    return Classification("unknown", reason, interval_frames=interval_frames)
+def unknown(reason: str, interval_frames: int = 0, interval_s: float = math.nan) -> Classification:
+    return Classification("unknown", reason, interval_frames=interval_frames, interval_s=interval_s)
 
 
 def classify_pair(
@@ -137,6 +178,7 @@ def classify_pair(
     interval_frames: int,
     bsm_score: float = math.nan,
     t_sigma_rad: float = 0.0,
+    interval_s: float = math.nan,
 ) -> Classification:
     """Decide from one pair of observations and the translation between them.
 
@@ -158,6 +200,7 @@ def classify_pair(
         theta0_rad=th0,
         theta1_rad=th1,
         interval_frames=interval_frames,
+        interval_s=interval_s,
     )
     lo, hi = config.min_theta_rad, math.pi - config.min_theta_rad
     if config.method != "bsm" and not (lo <= th0 <= hi and lo <= th1 <= hi):

@@ -76,7 +76,8 @@ class FlowConfig:
     - ``sky_elevation_rad``: points whose NED bearing is above this elevation are not
       seeded and tracks that rise above it are dropped: the sky has no parallax, clouds
       drift.
-    - ``max_history``: frames of bearings kept per track (≥ the longest interval + 1).
+    - ``max_history``: frames of bearings kept per track (≥ the longest interval + 1; the
+      pipeline raises it to cover its longest interval in seconds at 60 fps).
     - ``exclude_margin_px``: dilation of the caller's object boxes.
     - ``reseed_fraction``, ``reseed_interval``: seeding runs when fewer than this share of
       ``n_points`` is alive, and every ``reseed_interval`` frames anyway.

@@ -5,10 +5,16 @@ telemetry reaches it one way only: the :class:`TelemetryBuffer` given to the con
 which the caller feeds and may share between cameras):
 attitude at the frame time (slerp on the autopilot clock mapped to the companion clock)
 → detection → tracking by bearing → optic flow → translation between the frame and the
-one ``frame_interval`` earlier (vision, autopilot or fused) → TCM/ECM (and BSM when
+one captured ``interval_s`` earlier (vision, autopilot or fused) → TCM/ECM (and BSM when
 enabled) per track → time to contact. It keeps the short history the method needs and
 nothing else; it never reads a clock, a file or a device (stage timings use an injected
 timer and do not affect results). Flight, SITL and replay all call this same object.
+
+Frames arrive at whatever rate the companion manages (frames it cannot process are
+dropped, never queued), so every duration of the method is in seconds of capture time:
+the reference observation is the one captured nearest ``interval_s`` earlier, the hold,
+the warm-ups and the looming window are measured in seconds (:mod:`.timebase`). The
+histories are frame rings sized for the longest interval at ``MAX_FRAME_RATE_HZ``.
 """
 
 from __future__ import annotations
@@ -49,8 +55,15 @@ from .flow import FlowConfig, FlowTracker
 from .frames import FloatArray, azel_from_bearing, rotate_by_vector
 from .tcm import stationary_range_m, triangle_geometry
 from .telemetry import TelemetryBuffer
+from .timebase import frames_to_cover, jitter_slack_s, median_period_s
 from .tracking import Observation, Track, Tracker, TrackerConfig
 from .ttc import TTCConfig, estimate_ttc
+
+#: Frame records kept at least (the paper's Fig. 4 study compares frames up to 40 apart,
+#: at 25 Hz, through :meth:`Pipeline.disparities_for_frame_intervals`).
+MIN_FRAME_RECORDS = 48
+#: Frames whose capture times give the frame period for the jitter allowance.
+PERIOD_FRAMES = 16
 
 EgomotionSource = Literal["vision", "autopilot", "fused"]
 
@@ -143,12 +156,21 @@ class Pipeline:
         self.config = config
         self._timer = timer
         self._telemetry = telemetry if telemetry is not None else TelemetryBuffer()
-        self.detector = Detector(camera, config.detection)
-        self.tracker = Tracker(config.tracking)
-        self.flow = FlowTracker(camera, config.flow)
         cls = config.classifier
-        # Frame records for the classifier's interval, and up to 48 for interval studies.
-        depth = max(cls.frame_interval + cls.frame_tolerance + 2, 48)
+        # Every history covers the longest interval and its tolerance at the fastest
+        # frame rate supported (and at least MIN_FRAME_RECORDS frames, for the Fig. 4
+        # study); by count, so memory is bounded whatever the rate.
+        span_s = cls.longest_interval_s + cls.interval_tolerance_s
+        depth = max(frames_to_cover(span_s), MIN_FRAME_RECORDS)
+        tracking = config.tracking
+        if tracking.history_s < span_s:
+            tracking = replace(tracking, history_s=span_s)
+        flow_cfg = config.flow
+        if flow_cfg.max_history < depth:
+            flow_cfg = replace(flow_cfg, max_history=depth)
+        self.detector = Detector(camera, config.detection)
+        self.tracker = Tracker(tracking)
+        self.flow = FlowTracker(camera, flow_cfg)
         self._frames: deque[_FrameRecord] = deque(maxlen=depth)
         self._bsm = (
             BackgroundSubtractor(camera, config.bsm)
@@ -160,8 +182,10 @@ class Pipeline:
         self._bsm_s = 0.0  # time spent in BSM this step (reported apart from classify)
         self._bsm_warps: dict[int, np.ndarray] = {}  # reference frame -> warp, this step
         self._bsm_warps_for = -1
-        # Recent decided classifications per track, for the hold.
+        # Recent decided classifications per track (capture time, result), for the hold.
         self._memory: dict[int, deque[tuple[int, Classification]]] = {}
+        # Allowance for capture-time jitter this step (s): a quarter frame period.
+        self._slack_s = 0.0
         self.health = PipelineHealth()
 
     @property
@@ -220,6 +244,9 @@ class Pipeline:
                 gray if self._bsm is not None else None,
             )
         )
+        self._slack_s = jitter_slack_s(
+            median_period_s(r.t_us for r in itertools.islice(reversed(self._frames), PERIOD_FRAMES))
+        )
         if R_ned_from_cam is None:
             tracks = self.tracker.coast_all()
         else:
@@ -230,7 +257,7 @@ class Pipeline:
 
         cache: dict[int, TranslationEstimate] = {}
         self._bsm_s = 0.0
-        objects = [self._object_result(tr, index, cache) for tr in tracks]
+        objects = [self._object_result(tr, frame_time_us, cache) for tr in tracks]
         live = {tr.track_id for tr in tracks}
         for tid in [t for t in self._memory if t not in live]:
             del self._memory[tid]
@@ -238,22 +265,31 @@ class Pipeline:
         timings["bsm"] = self._bsm_s * 1e3
         timings["classify"] = (t4 - t3 - self._bsm_s) * 1e3
         timings["total"] = (t4 - t_start) * 1e3
-        default_ref = index - self.config.classifier.frame_interval
+        default_ref = self._frame_near(
+            frame_time_us - round(self.config.classifier.interval_s * 1e6)
+        )
         return FrameResult(
             index,
             frame_time_us,
             tuple(objects),
             R_ned_from_cam is not None,
-            cache.get(default_ref),
+            cache.get(default_ref.index) if default_ref is not None else None,
             timings,
         )
 
-    def disparities_for_intervals(self, intervals: Sequence[int]) -> dict[int, dict[int, float]]:
-        """TCM disparity of every track detected in the last frame, for each interval.
+    def disparities_for_frame_intervals(
+        self, intervals_frames: Sequence[int]
+    ) -> dict[int, dict[int, float]]:
+        """TCM disparity of every track detected in the last frame, for each interval
+        counted in processed frames.
 
-        An analysis hook (the paper's Fig. 4 separation study); call right after
-        :meth:`step`. Returns ``{interval: {track_id: δ}}`` where defined.
+        An analysis hook for the paper's Fig. 4 separation study, which is about frame
+        intervals at the paper's 25 Hz by design (``eval --intervals``); the decisions
+        themselves use seconds. Call right after :meth:`step`; intervals up to
+        ``MIN_FRAME_RECORDS - 2`` frames are always available. Returns
+        ``{interval: {track_id: δ}}`` where defined.
         """
+        intervals = intervals_frames
         out: dict[int, dict[int, float]] = {}
         if not self._frames:
             return out
@@ -314,6 +350,20 @@ class Pipeline:
                 return rec
         return None
 
+    def _frame_near(self, t_us: int) -> _FrameRecord | None:
+        """The frame record captured nearest ``t_us``, within the interval tolerance (as
+        :meth:`Track.nearest_in_time` picks a track's reference)."""
+        tol_us = round(self.config.classifier.interval_tolerance_s * 1e6)
+        slack_us = round(self._slack_s * 1e6)
+        best: _FrameRecord | None = None
+        for rec in reversed(self._frames):  # newest first: an earlier one wins near-ties
+            dt = abs(rec.t_us - t_us)
+            if dt <= tol_us and (best is None or dt <= abs(best.t_us - t_us) + slack_us):
+                best = rec
+            if rec.t_us < t_us - tol_us:
+                break
+        return best
+
     def _translation(self, ref_index: int, cur_index: int) -> TranslationEstimate:
         src = self.config.egomotion_source
         vision = autopilot = None
@@ -335,38 +385,50 @@ class Pipeline:
             return vision
         return fuse(vision, autopilot, self.config.egomotion)
 
-    def _classify(
-        self, track: Track, index: int, cache: dict[int, TranslationEstimate]
-    ) -> Classification:
-        """Compare the newest observation with earlier ones, then apply the hold."""
+    def _classify(self, track: Track, cache: dict[int, TranslationEstimate]) -> Classification:
+        """Compare the newest observation with earlier ones, then apply the hold.
+
+        For each interval, the reference is the observation captured nearest
+        ``interval_s`` earlier, within ``interval_tolerance_s``. With none for any interval
+        (a young track, or detections missed around that time) the one nearest the
+        primary interval's time among those at least ``min_interval_s`` old serves.
+        """
         cls = self.config.classifier
         cur = track.last
         if track.coasting:
             return unknown("lost track")
+        slack_us = round(self._slack_s * 1e6)
+        tol_us = round(cls.interval_tolerance_s * 1e6)
+        interval_us = round(cls.interval_s * 1e6)
         pairs: list[Classification] = []
-        for k in cls.intervals:
-            ref = track.nearest_at_or_before(index - k, cls.frame_tolerance)
-            if ref is not None and ref.frame_index < cur.frame_index:
-                pairs.append(self._classify_pair(ref, cur, cache, bsm=k == cls.frame_interval))
+        for interval_s in cls.intervals_s:
+            k_us = round(interval_s * 1e6)
+            ref = track.nearest_in_time(
+                cur.t_us - k_us, tol_us, not_after_us=cur.t_us - 1, prefer_earlier_us=slack_us
+            )
+            if ref is not None:
+                # BSM (a whole-frame warp) only for a full primary-interval pair.
+                full = k_us == interval_us and cur.t_us - ref.t_us >= interval_us - slack_us
+                pairs.append(self._classify_pair(ref, cur, cache, bsm=full))
         if not pairs:
-            # Young track: the oldest observation, if the interval is long enough.
-            oldest = track.history[0]
-            if index - oldest.frame_index < cls.min_frame_interval:
+            newest_us = cur.t_us - round(cls.warmup_moving_s * 1e6) + slack_us
+            ref = track.nearest_in_time(
+                cur.t_us - interval_us, 1 << 62, not_after_us=min(newest_us, cur.t_us - 1)
+            )
+            if ref is None:
                 return unknown("warm-up")
-            pairs.append(self._classify_pair(oldest, cur, cache, bsm=False))
+            pairs.append(self._classify_pair(ref, cur, cache, bsm=False))
         decided = [c for c in pairs if c.state != "unknown"]
         if not decided:
             return pairs[-1]
         combined = combine_pairs(decided)
         memory = self._memory.setdefault(track.track_id, deque())
-        memory.append((index, combined))
-        while memory and index - memory[0][0] > cls.hold_frames:
+        memory.append((cur.t_us, combined))
+        hold_us = round(cls.hold_s * 1e6) + slack_us
+        while memory and cur.t_us - memory[0][0] > hold_us:
             memory.popleft()
         result = decide(hold(combined, [c for _, c in memory]), cls)
-        if (
-            result.state == "stationary"
-            and cur.frame_index - track.history[0].frame_index < cls.frame_interval
-        ):
+        if result.state == "stationary" and track.age_s(cur.t_us) < cls.interval_s - self._slack_s:
             # Motion can show over a short interval; its absence cannot: a young track is
             # called stationary only once it has been seen for the full interval.
             return replace(result, state="unknown", reason="warm-up")
@@ -381,6 +443,7 @@ class Pipeline:
     ) -> Classification:
         cls = self.config.classifier
         interval = cur.frame_index - ref.frame_index
+        interval_s = (cur.t_us - ref.t_us) * 1e-6
         if ref.frame_index not in cache:
             cache[ref.frame_index] = self._translation(ref.frame_index, cur.frame_index)
         est = cache[ref.frame_index]
@@ -396,15 +459,16 @@ class Pipeline:
                     cur.angular_radius_rad,
                     cls,
                     interval,
+                    interval_s,
                 )
-            return unknown("no translation", interval)
+            return unknown("no translation", interval, interval_s)
         if cls.min_baseline_m > 0 and not (est.magnitude_m >= cls.min_baseline_m):
             if math.isfinite(est.magnitude_m):
-                return unknown("small baseline", interval)
+                return unknown("small baseline", interval, interval_s)
         if cls.min_flow_parallax_rad > 0 and est.parallax_rad < cls.min_flow_parallax_rad:
-            return unknown("small baseline", interval)
+            return unknown("small baseline", interval, interval_s)
         if cur.touches_border or ref.touches_border:
-            return unknown("at image border", interval)
+            return unknown("at image border", interval, interval_s)
         bsm_score = self._bsm_score(ref) if (bsm and self._bsm is not None) else math.nan
         b1 = cur.bearing_ned
         if self.config.egomotion_rotation_correction and np.any(est.rotation_ned_rad):
@@ -420,6 +484,7 @@ class Pipeline:
             interval,
             bsm_score,
             t_sigma_rad=est.sigma_rad if math.isfinite(est.sigma_rad) else 0.0,
+            interval_s=interval_s,
         )
         parallax = abs(result.theta1_rad - result.theta0_rad)
         if (
@@ -466,21 +531,20 @@ class Pipeline:
         return score
 
     def _object_result(
-        self, track: Track, index: int, cache: dict[int, TranslationEstimate]
+        self, track: Track, t_us: int, cache: dict[int, TranslationEstimate]
     ) -> ObjectResult:
         obs = track.last
-        cls = self._classify(track, index, cache)
-        window = self.config.ttc.window_frames
-        hist = [
-            o
-            for o in itertools.islice(reversed(track.history), window)
-            if index - o.frame_index < window
-        ]
+        cls = self._classify(track, cache)
+        # The looming fit: observations captured within window_s of this frame.
+        window_us = round(self.config.ttc.window_s * 1e6) - round(self._slack_s * 1e6)
+        hist = list(
+            itertools.takewhile(lambda o: t_us - o.t_us < window_us, reversed(track.history))
+        )
         hist.reverse()
         ttc = estimate_ttc(
             np.array([o.t_us * 1e-6 for o in hist]),
             np.array([o.angular_radius_rad for o in hist]),
-            np.array([o.bearing_ned for o in hist]),
+            np.array([o.bearing_ned for o in hist]).reshape(-1, 3),
             self.config.ttc,
         )
         az, el = azel_from_bearing(obs.bearing_ned)

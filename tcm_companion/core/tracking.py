@@ -5,11 +5,17 @@ a vehicle's roll or yaw does not move an object out of its gate. Each track pred
 next bearing from its last angular velocity, and a detection may join it only within an
 angular gate (a fixed angle plus a multiple of the object's angular radius) and with a
 plausible size change. The assignment is optimal over all pairs (Hungarian). Tracks keep
-the observation history the classifier needs (at least its longest frame interval).
+the observation history the classifier needs, by capture time (``history_s``, at least its
+longest interval), and answer "the observation captured nearest time t".
+
+Association is between consecutive frames, so ``max_misses`` and the gate's growth while
+a track coasts count frames: at a lower rate each miss is a longer coast, but also the
+only evidence there is.
 """
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from collections import deque
@@ -20,6 +26,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from .frames import FloatArray, angle_between, normalize
+from .timebase import frames_to_cover
 
 
 @dataclass(frozen=True)
@@ -28,7 +35,16 @@ class TrackerConfig:
     gate_radius_factor: float = 1.5  # plus this many angular radii of the object
     max_log_size_change: float = math.log(1.6)  # |ln(α_new / α_old)| per association
     max_misses: int = 5  # frames a track may go undetected before it is dropped
-    history_frames: int = 64  # observations kept per track (≥ the longest interval)
+    # Observations kept per track, s of capture time (the pipeline keeps at least the
+    # classifier's longest interval and tolerance); at most what this span holds at
+    # timebase.MAX_FRAME_RATE_HZ, so memory stays bounded at any rate.
+    history_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.history_s) and self.history_s > 0):
+            raise ValueError(f"history_s must be > 0, got {self.history_s}")
+        if self.max_misses < 0:
+            raise ValueError(f"max_misses must be >= 0, got {self.max_misses}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,12 +63,14 @@ class Observation:
 
 @dataclass
 class Track:
-    """A tracked object: id, observations (newest last) and bookkeeping."""
+    """A tracked object: id, observations (newest last, by capture time) and bookkeeping."""
 
     track_id: int
     history: deque[Observation]
     misses: int = 0
     hits: int = 1
+    history_us: int = 2_000_000  # observations captured longer before the newest are dropped
+    first_t_us: int | None = None  # capture time of the first observation ever
     _by_frame: dict[int, Observation] = field(default_factory=dict, repr=False)
 
     @property
@@ -64,23 +82,49 @@ class Track:
         """True when this frame brought no detection for the track."""
         return self.misses > 0
 
+    def age_s(self, t_us: int) -> float:
+        """Time since the track's first observation at capture time ``t_us`` (s)."""
+        first = self.first_t_us if self.first_t_us is not None else self.history[0].t_us
+        return (t_us - first) * 1e-6
+
     def add(self, obs: Observation) -> None:
+        if self.first_t_us is None:
+            self.first_t_us = obs.t_us
         if len(self.history) == self.history.maxlen:
             old = self.history[0]
             self._by_frame.pop(old.frame_index, None)
         self.history.append(obs)
         self._by_frame[obs.frame_index] = obs
+        while len(self.history) > 1 and obs.t_us - self.history[0].t_us > self.history_us:
+            old = self.history.popleft()
+            self._by_frame.pop(old.frame_index, None)
 
     def at_frame(self, frame_index: int) -> Observation | None:
         return self._by_frame.get(frame_index)
 
-    def nearest_at_or_before(self, frame_index: int, tolerance: int) -> Observation | None:
-        """The observation at ``frame_index``, else the closest earlier one within tolerance."""
-        for k in range(tolerance + 1):
-            obs = self._by_frame.get(frame_index - k)
-            if obs is not None:
-                return obs
-        return None
+    def nearest_in_time(
+        self,
+        t_us: int,
+        tolerance_us: int,
+        not_after_us: int | None = None,
+        prefer_earlier_us: int = 0,
+    ) -> Observation | None:
+        """The observation captured nearest ``t_us`` and within ``tolerance_us`` of it,
+        ignoring any captured after ``not_after_us``; None if there is none.
+
+        Of the two either side of ``t_us``, the earlier one wins unless the later one is
+        nearer by more than ``prefer_earlier_us`` (capture jitter must not decide between
+        two frames equally far from ``t_us``: the longer pair is the better evidence)."""
+        times = [o.t_us for o in self.history]
+        hi = len(times) if not_after_us is None else bisect.bisect_right(times, not_after_us)
+        i = bisect.bisect_left(times, t_us, 0, hi)
+        before = i - 1 if i - 1 >= 0 and t_us - times[i - 1] <= tolerance_us else None
+        after = i if i < hi and times[i] - t_us <= tolerance_us else None
+        if before is None:
+            return self.history[after] if after is not None else None
+        if after is not None and times[after] - t_us < t_us - times[before] - prefer_earlier_us:
+            return self.history[after]
+        return self.history[before]
 
     def predict_bearing_ned(self, t_us: int) -> FloatArray:
         """Constant-angular-rate extrapolation of the last two observations."""
@@ -144,7 +188,11 @@ class Tracker:
         self.tracks = [tr for tr in self.tracks if tr.misses <= cfg.max_misses]
         for i, obs in enumerate(observations):
             if i not in assigned_obs:
-                tr = Track(next(self._ids), deque(maxlen=cfg.history_frames))
+                tr = Track(
+                    next(self._ids),
+                    deque(maxlen=frames_to_cover(cfg.history_s)),
+                    history_us=round(cfg.history_s * 1e6),
+                )
                 tr.add(obs)
                 self.tracks.append(tr)
         return list(self.tracks)

@@ -4,7 +4,8 @@ For a sphere of radius r at range d, ``sin α = r/d``, so ``d/dt ln sin α = -�
 the time to contact τ (range over closing speed, centre range) is the inverse slope of
 ``ln sin α`` against time. The slope is fitted robustly (Theil–Sen: the median of all
 pairwise slopes) over a short recent window, so a single bad radius measurement cannot
-swing it.
+swing it. The window is a span of capture time (``window_s``), so it means the same at
+any frame rate; it holds fewer samples at a lower rate.
 
 Collision course: constant bearing with decreasing range. With the bearing's angular
 rate ω in the local-level frame, an object on a straight relative path passes at
@@ -21,16 +22,30 @@ from dataclasses import dataclass
 import numpy as np
 
 from .frames import FloatArray
+from .timebase import jitter_slack_s
 
 
 @dataclass(frozen=True)
 class TTCConfig:
-    window_frames: int = 12  # frames in the looming fit (~0.5 s at 25 Hz)
-    min_frames: int = 6  # fewer observations than this: no estimate
+    # The looming fit uses the samples captured less than window_s before the newest
+    # (12 frames at 25 Hz).
+    window_s: float = 0.48
+    # No estimate from samples spanning less than min_span_s (6 frames at 25 Hz) or fewer
+    # than min_samples (a 5-fps camera still has 3 in the window).
+    min_span_s: float = 0.2
+    min_samples: int = 3
     max_ttc_s: float = 30.0  # slower looming than this counts as "not approaching"
     min_significance: float = 2.0  # slope must exceed this many of its own spreads
     collision_miss_radii: float = 4.0  # predicted miss within this many object radii
     collision_max_ttc_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.window_s) and self.window_s > 0):
+            raise ValueError(f"window_s must be > 0, got {self.window_s}")
+        if not (math.isfinite(self.min_span_s) and 0 <= self.min_span_s < self.window_s):
+            raise ValueError(f"min_span_s must be >= 0 and below window_s, got {self.min_span_s}")
+        if self.min_samples < 3:
+            raise ValueError(f"min_samples must be at least 3, got {self.min_samples}")
 
 
 @dataclass(frozen=True)
@@ -82,17 +97,27 @@ def estimate_ttc(
 ) -> TTCEstimate:
     """TTC and collision flag from the recent samples of one track.
 
-    ``t_s`` (N,) times in seconds, ``alpha_rad`` (N,) angular radii, ``bearing_ned`` (N, 3)
-    unit bearings in the local-level frame; only the last ``config.window_frames`` are used.
+    ``t_s`` (N,) capture times in seconds, increasing, ``alpha_rad`` (N,) angular radii,
+    ``bearing_ned`` (N, 3) unit bearings in the local-level frame; only the samples
+    captured less than ``config.window_s`` before the last are used (to the nearest frame:
+    within a quarter frame period of the window's start counts as outside).
     """
-    t = np.asarray(t_s, dtype=np.float64)[-config.window_frames :]
-    a = np.asarray(alpha_rad, dtype=np.float64)[-config.window_frames :]
-    b = np.asarray(bearing_ned, dtype=np.float64)[-config.window_frames :]
-    ok = np.isfinite(t) & np.isfinite(a) & (a > 0)
+    t = np.asarray(t_s, dtype=np.float64)
+    a = np.asarray(alpha_rad, dtype=np.float64)
+    b = np.asarray(bearing_ned, dtype=np.float64).reshape(-1, 3)
     nothing = TTCEstimate(math.nan, math.nan, math.nan, False)
-    if ok.sum() < config.min_frames:
+    if len(t) == 0 or not math.isfinite(t[-1]):
+        return nothing
+    steps = np.diff(t)
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    slack_s = jitter_slack_s(float(np.median(steps)) if len(steps) else math.nan)
+    ok = np.isfinite(t) & (t[-1] - t < config.window_s - slack_s)
+    ok &= np.isfinite(a) & (a > 0)
+    if ok.sum() < config.min_samples:
         return nothing
     t, a, b = t[ok], a[ok], b[ok]
+    if t[-1] - t[0] < config.min_span_s - slack_s:
+        return nothing
     slope, spread = theil_sen_slope(t - t[0], np.log(np.sin(a)))
     if not math.isfinite(slope):
         return nothing

@@ -4,7 +4,8 @@ Each truth object in each frame becomes one :class:`ObjectFrame`: matched to the
 whose local-level bearing is closest (within a gate), with the states and scores of
 every method. From these, :func:`summarize` computes the paper's numbers per method:
 accuracy at the configured threshold, coverage (object-frames after warm-up that got a
-decision), ROC area and the accuracy-optimal threshold.
+decision), ROC area and the accuracy-optimal threshold. Warm-up is time: object-frames
+captured at least the classifier's ``interval_s`` after the scenario's first frame count.
 
 All methods are scored on the same object-frames: those where TCM reached a decision
 (so a method is never credited for frames TCM declined as degenerate).
@@ -23,11 +24,15 @@ from ..config import AppConfig
 from ..core.classify import METHODS, ClassifierConfig, Method, fused_score
 from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult, Pipeline
+from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
 from ..io.scenario import Truth
 from ..replay import ScenarioLike, run_replay, with_method
 from .metrics import confusion, roc
 
 MATCH_GATE_RAD = math.radians(5.0)
+#: A record captured this close before the end of the warm-up counts as after it
+#: (capture jitter; a quarter frame at the fastest rate supported).
+WARMUP_SLACK_S = JITTER_FRACTION / MAX_FRAME_RATE_HZ
 
 
 @dataclass(frozen=True)
@@ -52,6 +57,8 @@ class ObjectFrame:
     collision_course: bool = False
     true_collision_course: bool = False
     interval_frames: int = 0
+    interval_s: float = math.nan  # capture time between the pair's observations
+    time_s: float = math.nan  # capture time since the scenario's first frame
 
     def score(self, method: Method, cls: ClassifierConfig) -> float:
         if method == "tcm":
@@ -118,8 +125,13 @@ def match_frame(
     frame: int,
     true_ttc: np.ndarray,
     true_collision: np.ndarray | None = None,
+    t0_us: int | None = None,
 ) -> tuple[list[ObjectFrame], int]:
-    """Truth objects of one frame matched to result objects (greedy by bearing)."""
+    """Truth objects of one frame matched to result objects (greedy by bearing).
+
+    ``frame`` is the scenario's frame index (the truth's), which differs from the
+    pipeline's own count when frames were dropped; ``t0_us`` the scenario's first capture
+    time (for :attr:`ObjectFrame.time_s`)."""
     rows = truth.rows_for_frame(frame)
     objs = [o for o in result.objects if o.detected]
     used: set[int] = set()
@@ -140,6 +152,7 @@ def match_frame(
         base = dict(
             frame=frame,
             t_us=result.t_us,
+            time_s=(result.t_us - t0_us) * 1e-6 if t0_us is not None else math.nan,
             object_id=int(truth.object_id[r]),
             truth_moving=bool(truth.moving[r]),
             true_ttc_s=float(true_ttc[r]),
@@ -165,6 +178,7 @@ def match_frame(
                 ttc_s=o.ttc_s,
                 collision_course=o.collision_course,
                 interval_frames=c.interval_frames,
+                interval_s=c.interval_s,
                 **base,  # type: ignore[arg-type]
             )
         )
@@ -201,7 +215,7 @@ def at_resolution(scenario: ScenarioLike, width: int, height: int) -> ScenarioLi
         return scenario
     rerender = getattr(scenario, "with_camera", None)
     if rerender is not None:
-        return rerender(scenario.camera.scaled(width, height))  # type: ignore[no-any-return]
+        return rerender(scenario.camera.scaled(width, height))
     return ResizedScenario(scenario, width, height)
 
 
@@ -214,8 +228,8 @@ def evaluate_scenario(
 ) -> ScenarioEval:
     """Replay one scenario (with truth) and collect one record per truth object-frame.
 
-    ``intervals``: also compute the TCM disparity for each of these frame intervals
-    (the separation study of the paper's Fig. 4).
+    ``intervals``: also compute the TCM disparity for each of these intervals counted in
+    frames (the separation study of the paper's Fig. 4, about frame intervals at 25 Hz).
     """
     truth: Truth | None = getattr(scenario, "truth", None)
     if truth is None:
@@ -228,14 +242,17 @@ def evaluate_scenario(
         truth, scenario.frame_times_us, ttc_cfg.collision_miss_radii, ttc_cfg.collision_max_ttc_s
     )
     ev = ScenarioEval(scenario.name, (scenario.camera.width, scenario.camera.height))
+    t0_us = int(scenario.frame_times_us[0]) if len(scenario.frame_times_us) else None
     for result in run_replay(scenario, cfg, pipe):
-        recs, false = match_frame(result, truth, result.frame_index, true_ttc, true_coll)
+        recs, false = match_frame(
+            result, truth, result.frame_index, true_ttc, true_coll, t0_us=t0_us
+        )
         ev.records.extend(recs)
         ev.false_tracks += false
         ev.frame_ms.append(result.timings_ms.get("total", math.nan))
         if intervals:
             moving = {r.track_id: r.truth_moving for r in recs if r.matched}
-            for k, per_track in pipe.disparities_for_intervals(intervals).items():
+            for k, per_track in pipe.disparities_for_frame_intervals(intervals).items():
                 for tid, delta in per_track.items():
                     if tid in moving:
                         ev.interval_disparities.setdefault(k, []).append((moving[tid], delta))
@@ -257,12 +274,21 @@ class MethodSummary:
     fpr: float
 
 
+def after_warmup(
+    records: list[ObjectFrame], cls: ClassifierConfig, warmup_s: float | None = None
+) -> list[ObjectFrame]:
+    """The records captured at least ``warmup_s`` (default: the classifier's interval,
+    after which a stationary object can be decided) after their scenario's first frame."""
+    warm = cls.interval_s if warmup_s is None else warmup_s
+    return [r for r in records if r.time_s >= warm - WARMUP_SLACK_S]
+
+
 def summarize(
-    records: list[ObjectFrame], cls: ClassifierConfig, warmup_frames: int | None = None
+    records: list[ObjectFrame], cls: ClassifierConfig, warmup_s: float | None = None
 ) -> list[MethodSummary]:
-    """Per-method metrics over pooled records (static and moving flights together)."""
-    warm = cls.frame_interval if warmup_frames is None else warmup_frames
-    after = [r for r in records if r.frame >= warm]
+    """Per-method metrics over pooled records (static and moving flights together);
+    coverage and accuracy count the records after the warm-up (:func:`after_warmup`)."""
+    after = after_warmup(records, cls, warmup_s)
     decided = [r for r in after if r.state != "unknown"]
     coverage = len(decided) / len(after) if after else math.nan
     truth = np.array([r.truth_moving for r in decided], dtype=bool)

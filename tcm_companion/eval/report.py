@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..core.classify import ClassifierConfig
-from .evaluate import MethodSummary, ObjectFrame, ScenarioEval, summarize
+from .evaluate import MethodSummary, ObjectFrame, ScenarioEval, after_warmup, summarize
 from .metrics import roc, separation
 
 
@@ -36,7 +37,7 @@ def per_scenario_table(evals: Sequence[ScenarioEval], cls: ClassifierConfig) -> 
             return _pct(m.accuracy if m else math.nan)
 
         tcm = summ.get("tcm")
-        after = [r for r in ev.records if r.frame >= cls.frame_interval and r.state != "unknown"]
+        after = [r for r in after_warmup(ev.records, cls) if r.state != "unknown"]
         d = np.array([r.disparity for r in after], dtype=np.float64)
         berr = np.array([r.bearing_error_rad for r in ev.records if r.matched])
         rerr = np.array([r.radius_error_rel for r in ev.records if r.matched])
@@ -96,7 +97,8 @@ def ttc_table(evals: Sequence[ScenarioEval], horizon_s: float = 10.0) -> str:
     return "\n".join(lines)
 
 
-def _plt():  # type: ignore[no-untyped-def]
+def _plt() -> Any:
+    """matplotlib's pyplot on the file-only Agg backend (imported only to draw)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -144,7 +146,7 @@ def plot_disparity_over_time(
 def plot_roc(records: Sequence[ObjectFrame], cls: ClassifierConfig, path: Path, title: str) -> None:
     """Fig. 10: ROC curves of TCM, ECM, BSM and fused on pooled records."""
     plt = _plt()
-    decided = [r for r in records if r.frame >= cls.frame_interval and r.state != "unknown"]
+    decided = [r for r in after_warmup(list(records), cls) if r.state != "unknown"]
     truth = np.array([r.truth_moving for r in decided], dtype=bool)
     fig, ax = plt.subplots(figsize=(5, 5))
     for method, color in (
@@ -169,6 +171,7 @@ def plot_roc(records: Sequence[ObjectFrame], cls: ClassifierConfig, path: Path, 
 
 
 def separation_by_interval(evals: Sequence[ScenarioEval]) -> dict[int, float]:
+    """Fig. 4(b): separation of static and moving disparities per frame interval."""
     pooled: dict[int, list[tuple[bool, float]]] = {}
     for ev in evals:
         for k, vals in ev.interval_disparities.items():

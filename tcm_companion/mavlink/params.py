@@ -6,6 +6,12 @@ Names are at most 16 characters, prefixed ``TCM_``. Values are range-checked; a
 ``PARAM_SET`` out of range is refused (the current value is sent back, as the protocol
 asks) and counted. Persistence is the edge's job: the endpoint reports changes, and
 :func:`config_with_params` turns the values into the pipeline's configuration.
+
+Durations are in seconds and their names say so (``TCM_INTERVAL_S``, ``TCM_HOLD_S``); they
+replace ``TCM_INTERVAL`` and ``TCM_HOLD``, which counted frames (a frame is 40 ms only at
+25 Hz). New names rather than new units under the old ones, so that a frame count stored
+on the companion or saved in a GCS parameter file is refused as unknown (and reported)
+instead of being read as seconds: an old ``TCM_HOLD`` of 3 frames would have become 3 s.
 """
 
 from __future__ import annotations
@@ -32,8 +38,8 @@ class ParamSpec:
 
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("TCM_THRESH", 0.09, 0.0, 2.0, False, "TCM disparity threshold (moving above)"),
-    ParamSpec("TCM_INTERVAL", 25, 2, 40, True, "frames between compared observations"),
-    ParamSpec("TCM_HOLD", 12, 0, 50, True, "frames a disparity counts after it was measured"),
+    ParamSpec("TCM_INTERVAL_S", 1.0, 0.1, 2.0, False, "time between compared observations, s"),
+    ParamSpec("TCM_HOLD_S", 0.48, 0.0, 2.0, False, "time a disparity keeps counting, s"),
     ParamSpec("TCM_HUE_MIN", -15.0, -60.0, 0.0, False, "detector seed hue lower bound, deg"),
     ParamSpec("TCM_HUE_MAX", 12.0, 0.0, 60.0, False, "detector seed hue upper bound, deg"),
     ParamSpec("TCM_SAT_MIN", 0.70, 0.0, 1.0, False, "detector seed minimum saturation"),
@@ -89,8 +95,8 @@ def config_with_params(config: PipelineConfig, values: Mapping[str, float]) -> P
     cls = dataclasses.replace(
         config.classifier,
         tcm_threshold=float(v["TCM_THRESH"]),
-        frame_interval=int(v["TCM_INTERVAL"]),
-        hold_frames=int(v["TCM_HOLD"]),
+        interval_s=float(v["TCM_INTERVAL_S"]),
+        hold_s=float(v["TCM_HOLD_S"]),
     )
     det = dataclasses.replace(
         config.detection,
@@ -109,8 +115,8 @@ def params_from_config(config: PipelineConfig) -> dict[str, float]:
     """Parameter values that describe ``config`` (used as defaults at start-up)."""
     return {
         "TCM_THRESH": config.classifier.tcm_threshold,
-        "TCM_INTERVAL": float(config.classifier.frame_interval),
-        "TCM_HOLD": float(config.classifier.hold_frames),
+        "TCM_INTERVAL_S": config.classifier.interval_s,
+        "TCM_HOLD_S": config.classifier.hold_s,
         "TCM_HUE_MIN": config.detection.seed_hue_deg[0],
         "TCM_HUE_MAX": config.detection.seed_hue_deg[1],
         "TCM_SAT_MIN": config.detection.seed_min_saturation,

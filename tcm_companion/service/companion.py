@@ -275,7 +275,9 @@ def mark_unknown(result: FrameResult, reason: str) -> FrameResult:
             o,
             state="unknown",
             reason=reason,
-            classification=unknown(reason, o.classification.interval_frames),
+            classification=unknown(
+                reason, o.classification.interval_frames, o.classification.interval_s
+            ),
         )
         for o in result.objects
     )

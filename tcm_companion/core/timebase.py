@@ -1,0 +1,55 @@
+"""Durations on the frame clock: the method counts seconds, not frames.
+
+The paper's interval, hold and warm-ups are frame counts at 25 Hz (25 frames = 1 s). A
+companion that cannot keep up runs at whatever rate it manages, and 25 frames at 8 fps
+are 3 s, about one period of an oscillating object: the triangle closes again. So every
+duration of the method is stated in seconds and compared with the capture times of the
+frames it spans.
+
+Capture times jitter (a camera's clock, a busy reader thread), and a duration is usually
+a whole number of frame periods, so "is this pair 1 s apart" is asked with a small
+allowance: a quarter of the recent frame period (:func:`jitter_slack_s`). A frame within
+it of the boundary counts as on it. At a steady rate that is exactly the old frame count
+(25 frames at 25 Hz is "1 s"), and no jitter smaller than a quarter period moves a
+decision by a frame.
+
+Memory is bounded by frame counts sized for the fastest rate supported,
+:data:`MAX_FRAME_RATE_HZ` (:func:`frames_to_cover`); faster cameras still work, with
+histories that span less time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+#: The fastest frame rate every history is sized for (frames per second).
+MAX_FRAME_RATE_HZ = 60.0
+
+#: A quarter of a frame period: how near a boundary a capture time counts as on it.
+JITTER_FRACTION = 0.25
+
+
+def frames_to_cover(span_s: float, rate_hz: float = MAX_FRAME_RATE_HZ) -> int:
+    """Frames (and so ring entries) that hold ``span_s`` seconds at ``rate_hz``: the
+    frames of the span, both ends included, plus one spare."""
+    return math.ceil(max(0.0, span_s) * rate_hz) + 2
+
+
+def median_period_s(times_us: Iterable[int]) -> float:
+    """Median step between consecutive capture times (s), given in either order; NaN
+    with fewer than two."""
+    t = np.fromiter(times_us, dtype=np.float64)
+    if len(t) < 2:
+        return math.nan
+    steps = np.abs(np.diff(t))
+    steps = steps[steps > 0]
+    return float(np.median(steps)) * 1e-6 if len(steps) else math.nan
+
+
+def jitter_slack_s(period_s: float) -> float:
+    """The allowance for capture-time jitter at frame period ``period_s``: a quarter of
+    it (0 when the period is unknown)."""
+    return JITTER_FRACTION * period_s if math.isfinite(period_s) and period_s > 0 else 0.0

@@ -51,9 +51,17 @@ demo: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check tcm_companion tests tools
 	$(BIN)/ruff format --check tcm_companion tests tools
+	$(BIN)/lint-imports --no-logo
+
+## What mypy checks by name (and whatever that imports): the science, the daemon and its
+## SITL runs, the command line, the camera sources.
+TYPED := tcm_companion/core tcm_companion/service tcm_companion/sitl tcm_companion/cli \
+         tcm_companion/logsetup.py tcm_companion/flightlog/docs.py tcm_companion/flightlog/handle.py \
+         tcm_companion/bench/daemon.py tcm_companion/io/cameras tcm_companion/io/sdnotify.py \
+         tcm_companion/sim/sources.py tcm_companion/sim/scene/truth_camera.py
 
 typecheck: $(STAMP)
-	$(BIN)/mypy tcm_companion/core tcm_companion/service tcm_companion/cli tcm_companion/io/cameras tcm_companion/io/sdnotify.py
+	$(BIN)/mypy $(TYPED)
 
 ## MAVProxy's own venv (.venv-interop) for tests/test_interop.py: built once, then cached.
 interop-env: $(STAMP)
@@ -96,4 +104,4 @@ bench: $(STAMP)
 	$(BIN)/tcm-companion bench
 
 clean:
-	rm -rf $(VENV) .venv-interop .pytest_cache .mypy_cache .ruff_cache out
+	rm -rf $(VENV) .venv-interop .pytest_cache .mypy_cache .ruff_cache .grimp_cache out

@@ -20,10 +20,10 @@ from typing import Any
 
 from .core.camera import _KEYS, CameraModel, CameraModelError, Equirectangular, camera_from_dict
 from .core.pipeline import PipelineConfig
+from .flightlog.writer import LoggingConfig
 from .io.cameras.settings import CameraSettings
-from .io.flightlog import LoggingConfig
-from .mavlink.setup import MavlinkSettings
 from .service.companion import DaemonConfig
+from .service.endpoint_setup import MavlinkSettings
 
 
 class ConfigError(ValueError):
@@ -49,7 +49,7 @@ class SimConfig:
     brake_on_collision: bool = True  # the mock brakes on a collision-course alarm
 
     def __post_init__(self) -> None:
-        from .sim.names import SCENARIO_NAMES
+        from .sim.scene.names import SCENARIO_NAMES
 
         if self.scenario.upper() not in SCENARIO_NAMES:
             raise ValueError(

@@ -17,7 +17,7 @@ import pytest
 
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
-from tcm_companion.sim.ardupilot_sitl import ArduPilotSitl, MavlinkTcpClient, skip_reason
+from tcm_companion.sim.vehicle.ardupilot_sitl import ArduPilotSitl, MavlinkTcpClient, skip_reason
 
 ROOT = Path(__file__).resolve().parents[1]
 APPLET = ROOT / "tools" / "ardupilot" / "tcm_avoid.lua"

@@ -20,15 +20,15 @@ from pathlib import Path
 import pytest
 
 from tcm_companion.config import AppConfig
-from tcm_companion.service.sitl_ardupilot import (
+from tcm_companion.sim.scene.autopilot_camera import SceneSettings
+from tcm_companion.sim.vehicle.ardupilot_sitl import ArduPilotSitl, skip_reason
+from tcm_companion.sitl.ardupilot import (
     APPLET,
     SITL_PARAMS,
     FlightPlanAP,
     FlightReport,
     fly_scene,
 )
-from tcm_companion.sim.ardupilot_sitl import ArduPilotSitl, skip_reason
-from tcm_companion.sim.autopilot_camera import SceneSettings
 
 SKIP_REASON = skip_reason()
 pytestmark = [
@@ -117,8 +117,8 @@ def test_proximity_and_parameters_through_ardupilot(tmp_path: Path) -> None:
     """OBSTACLE_DISTANCE from the daemon makes PRX1 healthy, and stopping the daemon makes it
     unhealthy; the daemon's TCM_* parameters are read and set from the ground station's
     link, through ArduPilot's routing."""
-    from tcm_companion.service.sitl_ardupilot import daemon_on_sitl
-    from tcm_companion.sim.autopilot_camera import AutopilotSimCamera
+    from tcm_companion.sim.scene.autopilot_camera import AutopilotSimCamera
+    from tcm_companion.sitl.ardupilot import daemon_on_sitl
 
     params = {**SITL_PARAMS, "PRX1_TYPE": 2}
 

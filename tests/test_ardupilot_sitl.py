@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from tcm_companion.sim.ardupilot_sitl import (
+from tcm_companion.sim.vehicle.ardupilot_sitl import (
     COPTER_MODES,
     ArduPilotSitl,
     MavlinkTcpClient,

@@ -31,14 +31,15 @@ from tcm_companion.io.cameras.base import CameraGone, monotonic_us
 from tcm_companion.io.cameras.settings import CameraSettings, open_source
 from tcm_companion.io.transports import TransportClosed, open_transport
 from tcm_companion.mavlink import tcm_dialect as mav
-from tcm_companion.sim.autopilot_camera import (
+from tcm_companion.sim.scene.autopilot_camera import (
     AutopilotSimCamera,
     SceneSettings,
     plan_launch,
 )
-from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
-from tcm_companion.sim.mock_autopilot_run import run_mock_autopilot
-from tcm_companion.sim.render import Renderer
+from tcm_companion.sim.scene.render import Renderer
+from tcm_companion.sim.sources import register_sim_sources
+from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
+from tcm_companion.sim.vehicle.mock_autopilot_run import run_mock_autopilot
 
 SMALL = Equirectangular(width=180, height=110)
 PERIOD_US = 40_000  # 25 fps
@@ -249,6 +250,7 @@ def test_headon_ball_sits_on_the_path_slightly_below() -> None:
 # Settings and the registry
 # --------------------------------------------------------------------------------------
 def test_registry_builds_the_source_from_settings() -> None:
+    register_sim_sources()
     s = CameraSettings(
         source="sim_autopilot",
         sim_url="udpin:0.0.0.0:14560",
@@ -295,6 +297,7 @@ def test_settings_load_through_the_config_loader() -> None:
     }
     s = build_dataclass(CameraSettings, table, "camera")
     assert s.sim_static_balls == ((5.0, 1.0, -1.0, 0.5), (0.0, -3.0, -2.0, 0.375))
+    register_sim_sources()
     src = open_source(s, SMALL)
     assert isinstance(src, AutopilotSimCamera)
     assert [b.radius_m for b in src.scene.static_ball_objects()] == [0.5, 0.375]

@@ -46,7 +46,8 @@ from tcm_companion.io.cameras.settings import (
     FisheyeCameraSettings,
     open_source,
 )
-from tcm_companion.io.cameras.sim import SimulatedCamera
+from tcm_companion.sim.scene.truth_camera import SimulatedCamera
+from tcm_companion.sim.sources import register_sim_sources
 
 from .conftest import example_path
 
@@ -708,7 +709,7 @@ def test_sim_without_vehicle_counts_empty_frames() -> None:
 
 
 def test_sim_for_mock_autopilot_renders_its_truth() -> None:
-    from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
+    from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 
     fake = FakeClock()
     ap = MockAutopilot(MockAutopilotConfig(scenario="T90", seed=3), fake.clock())
@@ -808,7 +809,30 @@ def test_settings_load_through_the_config_loader() -> None:
         build_dataclass(CameraSettings, {"fps": -1}, "camera")
 
 
+def test_the_simulators_sources_are_registered_by_the_simulator(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """io does not import the simulator: until tcm_companion.sim.sources registers "sim"
+    and "sim_autopilot", open_source refuses them and says which module registers them."""
+    from tcm_companion.io.cameras import settings
+    from tcm_companion.sim.scene.autopilot_camera import AutopilotSimCamera
+
+    for kind in ("sim", "sim_autopilot"):
+        monkeypatch.delitem(settings.BUILDERS, kind, raising=False)
+    cam = Equirectangular(width=W, height=H)
+    for kind in ("sim", "sim_autopilot"):
+        with pytest.raises(CameraError, match=rf"'{kind}'.*tcm_companion\.sim\.sources"):
+            open_source(CameraSettings(source=kind), cam)
+    with pytest.raises(ValueError, match="webcam"):
+        settings.register_source("webcam", lambda *_: FakeLive())
+    register_sim_sources()
+    assert isinstance(open_source(CameraSettings(source="sim_autopilot"), cam), AutopilotSimCamera)
+    register_sim_sources()  # again: idempotent
+    assert {"sim", "sim_autopilot"} <= set(settings.BUILDERS)
+
+
 def test_open_source_registry(media: dict[str, Path], tmp_path: Path) -> None:
+    register_sim_sources()
     cam = Equirectangular(width=W, height=H)
     with pytest.raises(CameraError, match="mock autopilot"):
         open_source(CameraSettings(source="sim"), cam)

@@ -102,7 +102,7 @@ def test_building_the_parser_and_help_import_nothing_heavy() -> None:
 def test_choices_are_the_core_s() -> None:
     """The parser's light copies of the core's and the simulator's names."""
     from tcm_companion.core.classify import METHODS
-    from tcm_companion.sim import cameras, names, scenarios
+    from tcm_companion.sim.scene import cameras, names, scenarios
 
     assert common.METHODS == METHODS
     assert common.CAMERA_PRESETS == cameras.PRESETS

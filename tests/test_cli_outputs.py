@@ -64,7 +64,7 @@ def test_unreadable_frame_is_skipped_reported_and_unknown(
 def test_a_failed_replay_leaves_no_output(
     scenario: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import tcm_companion.replay as replay
+    import tcm_companion.replay.scenario as replay
 
     real = replay.run_replay
 

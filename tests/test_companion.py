@@ -28,8 +28,8 @@ from tcm_companion.service.companion import (
     HealthChecked,
     ParamsChanged,
 )
-from tcm_companion.sim.export import SimulatedScenario
-from tcm_companion.sim.scenarios import flight_plan
+from tcm_companion.sim.scene.export import SimulatedScenario
+from tcm_companion.sim.scene.scenarios import flight_plan
 
 CAMERA = Equirectangular(360, 220)
 

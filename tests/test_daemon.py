@@ -1,6 +1,6 @@
 """The daemon in SITL: the fault matrix, frame accounting, the watchdog, signals.
 
-Behaviour runs in virtual time (``run_sitl(..., clock="virtual")``, service/sitl_virtual.py):
+Behaviour runs in virtual time (``run_sitl(..., clock="virtual")``, sitl/virtual.py):
 the mock autopilot, a camera rendered from its true state and the companion — the same
 :class:`Companion` and plumbing as the daemon, the reader's own state machine — on one
 simulated clock, as fast as the CPU allows and the same every run, so no assertion here
@@ -33,11 +33,11 @@ import pytest
 from tcm_companion.config import AppConfig
 from tcm_companion.core.pipeline import Pipeline
 from tcm_companion.io.cameras.base import CameraGone, FrameSource
-from tcm_companion.io.cameras.sim import SimulatedCamera
 from tcm_companion.mavlink.endpoint import EndpointConfig
-from tcm_companion.service.sitl import SitlReport, run_sitl
-from tcm_companion.service.sitl_virtual import VIRTUAL_START_MONO_US
-from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
+from tcm_companion.sim.scene.truth_camera import SimulatedCamera
+from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
+from tcm_companion.sitl.mock import SitlReport, run_sitl
+from tcm_companion.sitl.virtual import VIRTUAL_START_MONO_US
 
 ROOT = Path(__file__).resolve().parents[1]
 FPS = 25

@@ -16,7 +16,6 @@ from hypothesis import strategies as st
 from tcm_companion.core.classify import Classification
 from tcm_companion.core.frames import bearing_from_azel
 from tcm_companion.core.pipeline import FrameResult, ObjectResult
-from tcm_companion.io.samples import Rejected, parse_telemetry, sample_from_message
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec, SigningConfig
 from tcm_companion.mavlink.endpoint import (
@@ -30,6 +29,7 @@ from tcm_companion.mavlink.endpoint import (
     TelemetryRejected,
 )
 from tcm_companion.mavlink.params import PARAMS
+from tcm_companion.mavlink.samples import Rejected, parse_telemetry, sample_from_message
 from tcm_companion.mavlink.statustext import CollisionConditions, StatustextQueue
 from tcm_companion.mavlink.streams import StreamRequests
 from tcm_companion.mavlink.timesync import FRESH_US

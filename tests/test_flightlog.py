@@ -29,17 +29,17 @@ from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from tcm_companion.io import flightlog as fl
-from tcm_companion.io import flightlog_read, topics
-from tcm_companion.io.flightlog import (
-    FlightLogWriter,
-    LoggingConfig,
+from tcm_companion.flightlog import reader as log_reader
+from tcm_companion.flightlog import topics
+from tcm_companion.flightlog import writer as fl
+from tcm_companion.flightlog.reader import (
     decode_image,
     decode_json,
     log_files,
     read_log,
     read_metadata,
 )
+from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
 
 REPO = Path(__file__).resolve().parents[1]
 WALL = 1_790_000_000_000_000_000 - 5_000_000_000  # a fixed wall-minus-monotonic offset (ns)
@@ -152,7 +152,7 @@ def test_defaults_and_state_codes_match_the_dialect(tmp_path: Path) -> None:
 
 
 def test_the_topic_table_is_the_one_the_docs_list() -> None:
-    """io/topics.py and the table of docs/logging.md name the same topics and encodings."""
+    """flightlog/topics.py and the table of docs/logging.md name the same topics and encodings."""
     doc = (REPO / "docs" / "logging.md").read_text(encoding="utf-8")
     rows = [ln for ln in doc.splitlines() if ln.startswith("| `/")]
     documented: dict[str, str] = {}
@@ -186,11 +186,11 @@ def test_one_counts_object_and_its_snapshots(tmp_path: Path) -> None:
     assert w.stats.frames_dropped_queue == 1 and w.stats.files == []
 
 
-def test_the_reader_module_is_the_flightlog_readers(tmp_path: Path) -> None:
-    assert fl.read_log is flightlog_read.read_log and fl.LogRecord is flightlog_read.LogRecord
-    assert flightlog_read.part_name("20260101-000000", 7) == "tcm-20260101-000000-007.mcap"
+def test_the_reader_module_is_the_log_readerers(tmp_path: Path) -> None:
+    assert fl.read_log is log_reader.read_log and fl.LogRecord is log_reader.LogRecord
+    assert log_reader.part_name("20260101-000000", 7) == "tcm-20260101-000000-007.mcap"
     with pytest.raises(FileNotFoundError):
-        flightlog_read.log_files(tmp_path / "none")
+        log_reader.log_files(tmp_path / "none")
 
 
 # ---------------------------------------------------------------------------------------
@@ -421,7 +421,7 @@ CRASH_WRITER = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from tcm_companion.io.flightlog import FlightLogWriter, LoggingConfig
+    from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
 
     w = FlightLogWriter(LoggingConfig(), sys.argv[1])  # default flush interval and chunks
     w.start({"test": "crash"})

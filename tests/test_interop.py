@@ -76,11 +76,11 @@ from tcm_companion.io.transports import (
 from tcm_companion.io.transports.socat import SocatPtyPair, socat_available
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.endpoint import CompanionEndpoint, Event, ParamChanged
-from tcm_companion.mavlink.link import CompanionLink, monotonic_us
 from tcm_companion.mavlink.params import PARAMS
-from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
-from tcm_companion.sim.mock_autopilot import ParamChanged as MockParamChanged
-from tcm_companion.sim.mock_autopilot_run import run_mock_autopilot
+from tcm_companion.service.link import CompanionLink, monotonic_us
+from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
+from tcm_companion.sim.vehicle.mock_autopilot import ParamChanged as MockParamChanged
+from tcm_companion.sim.vehicle.mock_autopilot_run import run_mock_autopilot
 
 ROOT = Path(__file__).resolve().parents[1]
 XML = ROOT / "tcm_companion" / "mavlink" / "tcm.xml"

@@ -37,10 +37,11 @@ from typing import Any
 import pytest
 
 from tcm_companion.config import AppConfig
-from tcm_companion.io.flightlog import LoggingConfig, decode_json, read_log
+from tcm_companion.flightlog.reader import decode_json, read_log
+from tcm_companion.flightlog.writer import LoggingConfig
 from tcm_companion.io.results import ResultsWriter
-from tcm_companion.replay_log import compare, replay_log
-from tcm_companion.service.sitl import run_sitl
+from tcm_companion.replay.log import compare, replay_log
+from tcm_companion.sitl.mock import run_sitl
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -292,7 +293,7 @@ def test_logs_written_in_frame_counts_replay_in_seconds() -> None:
     (``frame_interval = 25`` ...) and ``TCM_INTERVAL``/``TCM_HOLD``: read at its camera
     rate, not refused (the reference log of 2026-11-22 replays within float noise so)."""
     from tcm_companion.config import config_from_dict
-    from tcm_companion.replay_log import from_frame_counts
+    from tcm_companion.replay.log import from_frame_counts
 
     old = {
         "pipeline": {

@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 
 from tcm_companion.config import AppConfig
-from tcm_companion.io import flightlog
-from tcm_companion.io.flightlog import FlightLogWriter, LoggingConfig
+from tcm_companion.flightlog import reader
+from tcm_companion.flightlog.docs import annotation_circles
+from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.io.tlog import read_tlog
 from tcm_companion.logtools import (
@@ -34,10 +35,9 @@ from tcm_companion.logtools import (
 from tcm_companion.logtools.convert import replay_result_doc, split_mavlink
 from tcm_companion.logtools.plot import PLOT_NAMES
 from tcm_companion.mavlink import tcm_dialect
-from tcm_companion.replay import run_replay
-from tcm_companion.service.logdocs import annotation_circles
+from tcm_companion.replay.scenario import run_replay
 from tcm_companion.sim import make_scenario
-from tcm_companion.sim.export import export_scenario
+from tcm_companion.sim.scene.export import export_scenario
 
 LAYOUT = Path(__file__).resolve().parents[1] / "tools" / "foxglove" / "tcm_layout.json"
 OFFSET_NS = 1_700_000_123_456_000  # wall minus monotonic of the test "daemon"
@@ -115,7 +115,7 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> Flight:
     w.stop(timeout_s=30.0)
     st = w.stats
     assert st.frames_logged == len(frames) and st.write_errors == 0
-    (log_file,) = flightlog.log_files(log_dir)
+    (log_file,) = reader.log_files(log_dir)
     return Flight(sim=sim, frames=frames, log_dir=log_dir, log_file=log_file, tmp=tmp)
 
 
@@ -231,7 +231,7 @@ def test_log_to_scenario_errors_name_the_log(flight: Flight, tmp_path: Path) -> 
         if frame:
             w.log_frame(0, 2000, image)
         w.stop()
-        return flightlog.log_files(tmp_path / name)[0]
+        return reader.log_files(tmp_path / name)[0]
 
     no_meta = small_log("a", {}, frame=True, mav=[hb, att])
     with pytest.raises(LogConversionError, match=rf"{re.escape(str(no_meta))}: metadata has no"):
@@ -268,7 +268,7 @@ def test_scenario_to_log_and_back(flight: Flight, exported: Path, tmp_path: Path
         "imported.mcap"
     ]
     counts: dict[str, int] = {}
-    for rec in flightlog.read_log(log_path):
+    for rec in reader.read_log(log_path):
         counts[rec.topic] = counts.get(rec.topic, 0) + 1
         assert rec.log_time_ns == rec.publish_time_ns  # logged on the scenario's clock
     n = flight.sim.n_frames
@@ -278,10 +278,10 @@ def test_scenario_to_log_and_back(flight: Flight, exported: Path, tmp_path: Path
         "/tcm/result": n,
         "/mavlink/in": len(flight.sim.tlog_records),
     }
-    meta = flightlog.read_metadata(log_path)
+    meta = reader.read_metadata(log_path)
     assert json.loads(meta["camera0"]) == flight.sim.camera.to_dict()
-    first = next(flightlog.read_log(log_path, topics={"/tcm/result"}))
-    doc = flightlog.decode_json(first)
+    first = next(reader.read_log(log_path, topics={"/tcm/result"}))
+    doc = reader.decode_json(first)
     assert doc["t_capture_us"] == load_scenario(exported).frame_times_us[0]
 
     # ... and back: the same scenario, times and telemetry bytes unchanged.
@@ -392,10 +392,10 @@ def test_foxglove_layout_references_what_the_daemon_logs(flight: Flight) -> None
 
     docs: dict[str, list[dict[str, Any]]] = {}
     topics = set()
-    for rec in flightlog.read_log(flight.log_file):
+    for rec in reader.read_log(flight.log_file):
         topics.add(rec.topic)
         if rec.message_encoding == "json":
-            docs.setdefault(rec.topic, []).append(flightlog.decode_json(rec))
+            docs.setdefault(rec.topic, []).append(reader.decode_json(rec))
 
     image = next(c for pid, c in panels.items() if pid.startswith("Image!"))["imageMode"]
     assert image["imageTopic"] == "/camera0/image"

@@ -676,8 +676,8 @@ def _mock_run(action: int, ttc: float = 2.0, cc: int = 1):
     pytest.importorskip("lupa", reason="lupa not installed (pip install lupa)")
     import numpy as np
 
-    from tcm_companion.sim.lua_applet import LuaAppletAutopilot
-    from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
+    from tcm_companion.sim.vehicle.lua_applet import LuaAppletAutopilot
+    from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 
     t0 = 5_000_000_000
     cfg = MockAutopilotConfig(scenario="COLLISION", ekf_origin_delay_us=0, brake_on_collision=False)
@@ -711,7 +711,7 @@ def _mock_run(action: int, ttc: float = 2.0, cc: int = 1):
 
 
 def test_mock_autopilot_brakes_through_the_applet():
-    from tcm_companion.sim.mock_autopilot import BrakeStarted
+    from tcm_companion.sim.vehicle.mock_autopilot import BrakeStarted
 
     ap, events, speed = _mock_run(action=2)
     assert ap.mavlink_init == (20, 20) and ap.registered == {45100, 45101}
@@ -738,13 +738,13 @@ def test_closed_loop_sitl_the_daemon_drives_the_applet_to_brake(tmp_path: Path) 
     from dataclasses import replace
 
     from tcm_companion.config import AppConfig
-    from tcm_companion.service.sitl import run_sitl
-    from tcm_companion.service.sitl_virtual import (
+    from tcm_companion.sim.vehicle.lua_applet import LuaAppletAutopilot
+    from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
+    from tcm_companion.sitl.mock import run_sitl
+    from tcm_companion.sitl.virtual import (
         VIRTUAL_START_MONO_US,
         VIRTUAL_UNIX_US_AT_START,
     )
-    from tcm_companion.sim.lua_applet import LuaAppletAutopilot
-    from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
 
     mcfg = MockAutopilotConfig(
         scenario="COLLISION", brake_on_collision=False, unix_us_at_start=VIRTUAL_UNIX_US_AT_START

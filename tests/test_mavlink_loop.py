@@ -18,8 +18,12 @@ from tcm_companion.mavlink.endpoint import (
     CompanionEndpoint,
     TelemetryReceived,
 )
-from tcm_companion.mavlink.link import CompanionLink
-from tcm_companion.sim.mock_autopilot import BrakeStarted, MockAutopilot, MockAutopilotConfig
+from tcm_companion.service.link import CompanionLink
+from tcm_companion.sim.vehicle.mock_autopilot import (
+    BrakeStarted,
+    MockAutopilot,
+    MockAutopilotConfig,
+)
 
 START = 5_000_000_000  # µs on the shared simulated clock
 
@@ -146,7 +150,7 @@ def test_closed_loop_brake_on_collision_alarm() -> None:
 
 def test_link_over_udp_with_the_mock_runner() -> None:
     from tcm_companion.io.transports import open_transport
-    from tcm_companion.sim.mock_autopilot_run import run_mock_autopilot
+    from tcm_companion.sim.vehicle.mock_autopilot_run import run_mock_autopilot
 
     async def main() -> tuple[CompanionEndpoint, MockAutopilot]:
         import socket

@@ -24,7 +24,7 @@ from tcm_companion.cli.sim import add_mock_autopilot_arguments
 from tcm_companion.io.transports import memory_pair
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
-from tcm_companion.sim.mock_autopilot import (
+from tcm_companion.sim.vehicle.mock_autopilot import (
     COPTER_MODE_BRAKE,
     COPTER_MODE_GUIDED,
     BrakeStarted,
@@ -36,13 +36,13 @@ from tcm_companion.sim.mock_autopilot import (
     PeerSeen,
     StatusReceived,
 )
-from tcm_companion.sim.mock_autopilot_run import (
+from tcm_companion.sim.vehicle.mock_autopilot_run import (
     TransportClosed,
     config_from_args,
     run_mock_autopilot,
 )
-from tcm_companion.sim.mock_checks import check_status, collision_alarm
-from tcm_companion.sim.telemetry import TelemetryConfig, TelemetryNoise
+from tcm_companion.sim.vehicle.mock_checks import check_status, collision_alarm
+from tcm_companion.sim.vehicle.telemetry import TelemetryConfig, TelemetryNoise
 
 T0_US = 5_000_000_000  # the caller's clock when the mock starts (arbitrary monotonic µs)
 S = 1_000_000  # µs per second

@@ -68,7 +68,7 @@ def test_timestamp_store(tmp_path: Path) -> None:
 
 
 def test_make_endpoint_signing_and_params(tmp_path: Path) -> None:
-    from tcm_companion.mavlink.setup import MavlinkSettings, make_endpoint, persist
+    from tcm_companion.service.endpoint_setup import MavlinkSettings, make_endpoint, persist
 
     key = tmp_path / "key"
     key.write_text("ab" * 32)

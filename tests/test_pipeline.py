@@ -11,7 +11,7 @@ from tcm_companion.config import AppConfig
 from tcm_companion.core.pipeline import Pipeline
 from tcm_companion.core.telemetry import AttitudeSample
 from tcm_companion.io.scenario import load_scenario
-from tcm_companion.replay import run_replay
+from tcm_companion.replay.scenario import run_replay
 
 from .conftest import example_path
 
@@ -185,7 +185,7 @@ def classify_synthetic(fps: float, moving_until_s: float, duration_s: float = 4.
 
     from tcm_companion.core.classify import Classification
     from tcm_companion.core.tracking import Observation, Track
-    from tcm_companion.sim.scenarios import default_camera
+    from tcm_companion.sim.scene.scenarios import default_camera
 
     pipe = Pipeline(default_camera())
     pipe._slack_s = 0.25 / fps
@@ -231,7 +231,7 @@ def test_histories_cover_the_interval_at_60_fps() -> None:
 
     from tcm_companion.core.pipeline import PipelineConfig
     from tcm_companion.core.tracking import TrackerConfig
-    from tcm_companion.sim.scenarios import default_camera
+    from tcm_companion.sim.scene.scenarios import default_camera
 
     cfg = PipelineConfig(tracking=TrackerConfig(history_s=0.5))
     cfg = replace(cfg, classifier=replace(cfg.classifier, interval_s=2.0))

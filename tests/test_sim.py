@@ -19,8 +19,8 @@ from tcm_companion.core.telemetry import AttitudeSample, PositionSample
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.io.tlog import iter_tlog
 from tcm_companion.sim import SCENARIO_NAMES, export_scenario, flight_plan, make_scenario
-from tcm_companion.sim.render import Renderer
-from tcm_companion.sim.scenarios import PAPER_SCENARIO_NAMES, euler_zyx_rad, plan_world
+from tcm_companion.sim.scene.render import Renderer
+from tcm_companion.sim.scene.scenarios import PAPER_SCENARIO_NAMES, euler_zyx_rad, plan_world
 
 CAMERAS: dict[str, CameraModel] = {
     "equirectangular": Equirectangular(360, 220),

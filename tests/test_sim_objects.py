@@ -14,21 +14,21 @@ import pytest
 from tcm_companion.core.camera import CameraModel, Equirectangular, Fisheye, Pinhole
 from tcm_companion.io.scenario import ScenarioError, load_scenario
 from tcm_companion.sim import export_scenario, make_scenario
-from tcm_companion.sim.detector_sim import (
+from tcm_companion.sim.scene.detector_sim import (
     DetectorSimConfig,
     TrueBox,
     detections_from_truth,
     simulate_detections,
     true_boxes,
 )
-from tcm_companion.sim.render import Renderer
-from tcm_companion.sim.scenario_io import (
+from tcm_companion.sim.scene.render import Renderer
+from tcm_companion.sim.scene.scenario_io import (
     read_detections_csv,
     read_targets,
     target_spec,
     write_detections_csv,
 )
-from tcm_companion.sim.scenarios import (
+from tcm_companion.sim.scene.scenarios import (
     HEADING_RAD,
     OBJECT_SCENARIO_NAMES,
     PAPER_SCENARIO_NAMES,
@@ -37,14 +37,14 @@ from tcm_companion.sim.scenarios import (
     flight_plan,
     plan_world,
 )
-from tcm_companion.sim.truth import (
+from tcm_companion.sim.scene.truth import (
     box_centre_px,
     box_width_px,
     coverage_box_px,
     is_full_panorama,
     project_object,
 )
-from tcm_companion.sim.world import (
+from tcm_companion.sim.scene.world import (
     COLOURS,
     Ball,
     BoxTarget,

@@ -1,4 +1,4 @@
-"""SITL in virtual time (service/sitl_virtual.py): the same results and flight-log bytes
+"""SITL in virtual time (sitl/virtual.py): the same results and flight-log bytes
 every run, the accuracy floor, and what the simulated clock models.
 """
 
@@ -14,14 +14,14 @@ from typing import Any
 import pytest
 
 from tcm_companion.config import AppConfig
-from tcm_companion.io.flightlog import read_log, read_metadata
-from tcm_companion.service.sitl import SitlReport, run_sitl, run_sitl_virtual
-from tcm_companion.service.sitl_virtual import (
+from tcm_companion.flightlog.reader import read_log, read_metadata
+from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
+from tcm_companion.sitl.mock import SitlReport, run_sitl, run_sitl_virtual
+from tcm_companion.sitl.virtual import (
     VIRTUAL_START_MONO_US,
     VIRTUAL_UNIX_US_AT_START,
     VirtualTimeModel,
 )
-from tcm_companion.sim.mock_autopilot import MockAutopilot, MockAutopilotConfig
 
 
 def _stable(lines: list[str]) -> list[str]:

@@ -21,9 +21,9 @@ import pytest
 
 from tcm_companion.core.camera import Equirectangular, Fisheye
 from tcm_companion.io.cameras.stitch import FisheyeStitcher, bench
-from tcm_companion.sim.render import Renderer
-from tcm_companion.sim.scenarios import FlightPlan, flight_plan
-from tcm_companion.sim.world import Ball, Trajectory, World, field_world
+from tcm_companion.sim.scene.render import Renderer
+from tcm_companion.sim.scene.scenarios import FlightPlan, flight_plan
+from tcm_companion.sim.scene.world import Ball, Trajectory, World, field_world
 
 LENS_DIST = (0.02, -0.005, 0.001, 0.0)
 MAD_BOUND_DN = 2.5  # measured 1.96-1.99; see the module docstring

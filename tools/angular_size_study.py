@@ -42,7 +42,7 @@ import numpy as np
 from tcm_companion.core.detection import DetectionConfig, Detector
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.sim import make_scenario
-from tcm_companion.sim.cameras import preset_camera
+from tcm_companion.sim.scene.cameras import preset_camera
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "tests" / "data" / "examples"
 

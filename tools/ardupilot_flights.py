@@ -17,9 +17,9 @@ import statistics
 import tempfile
 
 from tcm_companion.config import AppConfig
-from tcm_companion.service.sitl_ardupilot import APPLET, SITL_PARAMS, FlightPlanAP, fly_scene
-from tcm_companion.sim.ardupilot_sitl import ArduPilotSitl, skip_reason
-from tcm_companion.sim.autopilot_camera import SceneSettings
+from tcm_companion.sim.scene.autopilot_camera import SceneSettings
+from tcm_companion.sim.vehicle.ardupilot_sitl import ArduPilotSitl, skip_reason
+from tcm_companion.sitl.ardupilot import APPLET, SITL_PARAMS, FlightPlanAP, fly_scene
 
 
 def main() -> int:

@@ -4,7 +4,7 @@ and what the flight log costs ([logging]: on with JPEG by default, off, PNG).
 
 Each variant runs ``tcm-companion run`` as its own process for DURATION seconds at 25 Hz
 (frames from disk, the mock autopilot in another process over UDP; see
-tcm_companion/service/daemon_bench.py) and reports latency percentiles, the pipeline's
+tcm_companion/bench/daemon.py) and reports latency percentiles, the pipeline's
 share, CPU and RSS. Run:
 
     .venv/bin/python tools/daemon_tuning_study.py [DURATION]
@@ -15,7 +15,7 @@ from __future__ import annotations
 import sys
 import tempfile
 
-from tcm_companion.service.daemon_bench import run_daemon_bench
+from tcm_companion.bench.daemon import run_daemon_bench
 
 VARIANTS: list[tuple[str, tuple[str, ...]]] = [
     ("defaults (1 OpenCV thread, 1 ms GIL switch, 25 ms attitude lead)", ()),

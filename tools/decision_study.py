@@ -39,7 +39,7 @@ from tcm_companion.core.pipeline import Pipeline
 from tcm_companion.eval.evaluate import match_frame, truth_ttc_s
 from tcm_companion.eval.metrics import roc
 from tcm_companion.io.scenario import load_scenario
-from tcm_companion.replay import run_replay
+from tcm_companion.replay.scenario import run_replay
 
 INTERVALS = tuple(range(5, 41))
 SIM = ("TS", "T45", "T90", "RAISED", "INPLANE", "COLLISION", "TWO")

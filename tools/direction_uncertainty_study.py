@@ -31,7 +31,7 @@ from tcm_companion.config import AppConfig
 from tcm_companion.eval.evaluate import evaluate_scenario, summarize
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.sim import make_scenario
-from tcm_companion.sim.cameras import preset_camera
+from tcm_companion.sim.scene.cameras import preset_camera
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "tests" / "data" / "examples"
 VARIANTS = [(4.0, 0.03), (15.0, 0.03), (15.0, 0.02)]

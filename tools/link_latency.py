@@ -1,7 +1,7 @@
 """Link latency of a TCM_OBJECT_STATUS frame: pty at 921600 baud (via socat) and UDP.
 
 A frame is handed to the transport on one end; the clock stops when the far end's
-codec has decoded it (see tcm_companion/io/link_bench.py). Target (issue 3): p99 ≤ 2 ms
+codec has decoded it (see tcm_companion/bench/mavlink.py). Target (issue 3): p99 ≤ 2 ms
 through the pty on loopback.
 
     .venv/bin/python tools/link_latency.py                 # pty, udp, memory; ~10 s
@@ -26,7 +26,7 @@ from __future__ import annotations
 import argparse
 import platform
 
-from tcm_companion.io.link_bench import KINDS, measure_link_latency
+from tcm_companion.bench.mavlink import KINDS, measure_link_latency
 
 
 def main() -> int:

@@ -25,7 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tcm_companion.bench import _frames, _time_method
+from tcm_companion.bench.pipeline import _frames, _time_method
 from tcm_companion.config import AppConfig
 from tcm_companion.io.allocator import tune_allocator
 

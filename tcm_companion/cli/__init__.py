@@ -85,7 +85,7 @@ def _error_message(exc: BaseException) -> str | None:
         return f"error: {exc}"
     from ..io.scenario import ScenarioError
     from ..logtools.convert import LogConversionError
-    from ..replay_log import LogReplayError
+    from ..replay.log import LogReplayError
 
     if isinstance(exc, ScenarioError | LogConversionError | LogReplayError):
         return f"error: {exc}"

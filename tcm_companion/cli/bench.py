@@ -17,7 +17,7 @@ from .common import (
 
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.mavlink:
-        from ..bench import run_mavlink_bench
+        from ..bench.mavlink import run_mavlink_bench
 
         print(run_mavlink_bench())
         return 0
@@ -29,11 +29,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 2
-        from ..service.daemon_bench import print_daemon_bench, run_daemon_bench
+        from ..bench.daemon import print_daemon_bench, run_daemon_bench
 
         print_daemon_bench(run_daemon_bench(args.duration, extra_sets=tuple(args.set)))
         return 0
-    from ..bench import run_bench
+    from ..bench.pipeline import run_bench
 
     config = config_from_args(args)
     print(run_bench(config, args.resolutions or [(360, 220), (900, 550)], args.frames))

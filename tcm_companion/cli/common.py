@@ -25,7 +25,7 @@ DEFAULT_CONFIG = Path("config.toml")
 #: The decision methods (``tcm_companion.core.classify.METHODS``; a test keeps them equal).
 METHODS: tuple[str, ...] = ("tcm", "ecm", "bsm", "fused")
 
-#: The simulator's camera presets (``tcm_companion.sim.cameras.PRESETS``; a test keeps them
+#: The simulator's camera presets (``tcm_companion.sim.scene.cameras.PRESETS``; a test keeps them
 #: equal).
 CAMERA_PRESETS: tuple[str, ...] = ("panorama", "pinhole", "fisheye")
 

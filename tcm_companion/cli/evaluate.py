@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..sim.names import SCENARIO_NAMES
+from ..sim.scene.names import SCENARIO_NAMES
 from .common import (
     CAMERA_PRESETS,
     TOOLS_HINT,
@@ -39,7 +39,7 @@ def _scenarios(args: argparse.Namespace) -> list[Any]:
         camera = None
         for name in args.sim:
             if args.camera is not None:
-                from ..sim.cameras import preset_camera
+                from ..sim.scene.cameras import preset_camera
 
                 camera = preset_camera(args.camera, None, name)
             out.append(make_scenario(name, camera=camera, duration_s=args.duration, seed=args.seed))

@@ -22,7 +22,7 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     """A flight log: recompute every processed frame and compare with what was logged."""
     from ..io.outputs import atomic_text
     from ..io.results import ResultsWriter
-    from ..replay_log import compare, replay_log
+    from ..replay.log import compare, replay_log
 
     rows = mismatched = frames = 0
     diffs: list[str] = []
@@ -88,7 +88,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from ..io.outputs import atomic_text
     from ..io.results import ResultsWriter
     from ..io.scenario import load_scenario
-    from ..replay import run_replay, with_method
+    from ..replay.scenario import run_replay, with_method
 
     if is_log(args.scenario):
         return cmd_replay_log(args)

@@ -24,7 +24,7 @@ from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..sim.names import SCENARIO_NAMES
+from ..sim.scene.names import SCENARIO_NAMES
 from .common import (
     add_command,
     add_config_arguments,
@@ -111,14 +111,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"error: state directory {state}: {exc.strerror}", file=sys.stderr)
         return 2
-    from ..mavlink.setup import resolve_state_paths
+    from ..service.endpoint_setup import resolve_state_paths
 
     config = dataclasses.replace(config, mavlink=resolve_state_paths(config.mavlink, state))
     printer = _StatusPrinter(every=args.status_every) if not args.no_status else None
 
     if config.camera.source.source == "sim":
         log.info("camera source is the simulator: flying the mock autopilot (SITL)")
-        from ..service.logsetup import log_directory
+        from ..logsetup import log_directory
 
         log_dir = str(log_directory(config, state)) if config.logging.enabled else None
         # The service's exit status is about the service, not the simulation's accuracy.
@@ -138,7 +138,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         from ..io.cameras.base import CameraError
         from ..io.cameras.settings import open_source
         from ..service.daemon import CameraInput, Daemon
+        from ..sim.sources import register_sim_sources
 
+        register_sim_sources()  # source = "sim_autopilot" is the simulator's
         cam = config.camera
         try:
             source = open_source(cam.source, cam.model)
@@ -151,7 +153,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             asyncio.get_running_loop().call_later(args.duration, stop.set)
         from ..io.aio import monotonic_us
         from ..io.persist import SigningKeyError
-        from ..mavlink.setup import make_endpoint, persist
+        from ..service.endpoint_setup import make_endpoint, persist
 
         cameras = [CameraInput(cam.name, cam.model, source)]
         try:
@@ -163,7 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             log.warning("%s", w)
         flight_log = None
         if config.logging.enabled:
-            from ..service.logsetup import log_directory, start_flight_log
+            from ..logsetup import log_directory, start_flight_log
 
             log_dir = log_directory(config, state)
             # The parameters in force at start (persisted ones included): replay needs them.
@@ -252,7 +254,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
-    from ..service.sitl import DEFAULT_MIN_ACCURACY
+    from ..sitl.mock import DEFAULT_MIN_ACCURACY
 
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
@@ -274,7 +276,7 @@ def _run_sitl_virtual(
     """``sitl --clock virtual``: no event loop; SIGINT/SIGTERM end the simulation early."""
     import threading
 
-    from ..service.sitl import run_sitl_virtual
+    from ..sitl.mock import run_sitl_virtual
 
     stop = threading.Event()
     previous = {}
@@ -301,8 +303,8 @@ def _run_sitl_virtual(
 
 def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
     """``sitl --autopilot ardupilot``: real ArduCopter SITL with the applet, one flight."""
-    from ..service.sitl_ardupilot import SCENES
-    from ..sim.ardupilot_sitl import skip_reason
+    from ..sim.vehicle.ardupilot_sitl import skip_reason
+    from ..sitl.ardupilot import SCENES
 
     scene = (args.scenario or "CROSSING").lower()
     if scene not in SCENES:
@@ -318,7 +320,7 @@ def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
         return 2
 
     async def main() -> int:
-        from ..service.sitl_ardupilot import run_ardupilot_sitl
+        from ..sitl.ardupilot import run_ardupilot_sitl
 
         report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode)
         print("\n".join(report.lines()))
@@ -338,7 +340,7 @@ def _run_sitl_until(
     async def main() -> int:
         import asyncio
 
-        from ..service.sitl import run_sitl
+        from ..sitl.mock import run_sitl
 
         stop = asyncio.Event()
         _install_signals(stop)

@@ -1,8 +1,8 @@
 """``tcm-companion sim export``, ``sim list`` and ``mock-autopilot``: the simulator.
 
-The mock autopilot's options are defined here (from the light :mod:`..sim.names`), so
-that building the parser does not import the mock; :func:`~..sim.mock_autopilot_run.\
-run_from_args` runs it.
+The mock autopilot's options are defined here (from the light
+:mod:`tcm_companion.sim.scene.names`), so that building the parser does not import the
+mock; :func:`~tcm_companion.sim.vehicle.mock_autopilot_run.run_from_args` runs it.
 """
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..sim.names import SCENARIO_NAMES
+from ..sim.scene.names import SCENARIO_NAMES
 from .common import CAMERA_PRESETS, FORCE_HELP, add_command, resolution
 
 
 def _camera_arg(args: argparse.Namespace) -> Any:
     if args.camera is None:
         return None
-    from ..sim.cameras import preset_camera
+    from ..sim.scene.cameras import preset_camera
 
     return preset_camera(args.camera, args.resolution, args.name)
 
@@ -25,7 +25,7 @@ def _camera_arg(args: argparse.Namespace) -> Any:
 def cmd_sim_export(args: argparse.Namespace) -> int:
     from ..io.outputs import atomic_path
     from ..sim import make_scenario
-    from ..sim.export import export_scenario
+    from ..sim.scene.export import export_scenario
 
     camera = _camera_arg(args)
     sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)
@@ -46,7 +46,7 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
 
 
 def cmd_sim_list(_args: argparse.Namespace) -> int:
-    from ..sim.scenarios import describe_scenario
+    from ..sim.scene.scenarios import describe_scenario
 
     for name in SCENARIO_NAMES:
         print(f"{name:<15} {describe_scenario(name)}")
@@ -54,14 +54,14 @@ def cmd_sim_list(_args: argparse.Namespace) -> int:
 
 
 def cmd_mock_autopilot(args: argparse.Namespace) -> int:
-    from ..sim.mock_autopilot_run import run_from_args
+    from ..sim.vehicle.mock_autopilot_run import run_from_args
 
     return run_from_args(args)
 
 
 def add_mock_autopilot_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``tcm-companion mock-autopilot`` (read by
-    :func:`tcm_companion.sim.mock_autopilot_run.config_from_args`)."""
+    :func:`tcm_companion.sim.vehicle.mock_autopilot_run.config_from_args`)."""
     parser.add_argument(
         "--connect",
         required=True,
@@ -143,7 +143,7 @@ def add_parsers(sub: Any) -> None:
         "--detections",
         action="store_true",
         help="also write detections.csv: boxes from the simulated detector (jitter, misses,"
-        " false boxes; tcm_companion/sim/detector_sim.py)",
+        " false boxes; tcm_companion/sim/scene/detector_sim.py)",
     )
     e.add_argument(
         "--camera",

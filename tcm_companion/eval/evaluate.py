@@ -26,7 +26,7 @@ from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
 from ..io.scenario import Truth
-from ..replay import ScenarioLike, run_replay, with_method
+from ..replay.scenario import ScenarioLike, run_replay, with_method
 from .metrics import confusion, roc
 
 MATCH_GATE_RAD = math.radians(5.0)

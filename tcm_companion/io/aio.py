@@ -18,7 +18,7 @@ from a time cached at the start of the loop iteration, so a timer can fire a lit
 before the instant it was computed for; each wait therefore re-reads this clock and
 waits again until it has really reached the deadline. A caller that stamps with one
 clock and sleeps on another (the daemon before issue 12) cannot be run on any other
-clock; the virtual-time SITL (:mod:`tcm_companion.service.sitl_virtual`) drives the same
+clock; the virtual-time SITL (:mod:`tcm_companion.sitl.virtual`) drives the same
 sans-IO :class:`~tcm_companion.service.companion.Companion` without asyncio instead.
 """
 

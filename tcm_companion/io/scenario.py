@@ -20,7 +20,7 @@ import numpy as np
 
 from ..core.camera import CameraModel, CameraModelError, Equirectangular, camera_from_dict
 from ..core.telemetry import AttitudeSample, PositionSample, TelemetrySample
-from .samples import sample_from_message
+from ..mavlink.samples import sample_from_message
 from .tlog import TlogError, TlogStats, read_tlog
 
 if TYPE_CHECKING:

@@ -7,7 +7,7 @@ times). ``detections.csv``: ``frame,x_min,y_min,x_max,y_max,score,label``, one r
 box, in frame order; continuous pixel coordinates; a panorama box across the ±180° seam
 has ``x_min > x_max``. Readers follow the scenario reader's rule for malformed input: a
 :class:`~tcm_companion.io.scenario.ScenarioError` naming the file, the line and the
-problem. The simulator writes both (``sim/scenario_io.py``).
+problem. The simulator writes both (``sim/scene/scenario_io.py``).
 """
 
 from __future__ import annotations

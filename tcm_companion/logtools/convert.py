@@ -39,10 +39,11 @@ import cv2
 import tomli_w
 
 from ..core.camera import CameraModel, CameraModelError, camera_from_dict
-from ..io import flightlog, topics
+from ..flightlog import reader, topics
+from ..flightlog.docs import annotation_circles, result_doc
+from ..flightlog.writer import FlightLogWriter, LoggingConfig
 from ..io.scenario import FORMAT, FRAMES_HEADER, ScenarioError, load_scenario
 from ..io.tlog import TlogError, TlogWriter, read_tlog
-from ..service.logdocs import annotation_circles, result_doc
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +157,7 @@ def check_log_path(log_path: Path) -> None:
     """A log file, or a directory holding rotated parts; else an error naming it."""
     if not log_path.exists():
         raise LogConversionError(f"{log_path}: no such log file or directory")
-    if log_path.is_dir() and not flightlog.log_files(log_path):
+    if log_path.is_dir() and not reader.log_files(log_path):
         raise LogConversionError(f"{log_path}: directory holds no flight log (tcm-*.mcap)")
 
 
@@ -208,7 +209,7 @@ def log_to_scenario(
     check_log_path(log_path)
     if out.resolve() == log_path.resolve():
         raise LogConversionError(f"{out}: the scenario directory cannot be the log itself")
-    metadata = flightlog.read_metadata(log_path)
+    metadata = reader.read_metadata(log_path)
     camera = camera_from_metadata(metadata, camera_id, log_path)
 
     image_topic = topics.camera_image(camera_id)
@@ -219,13 +220,13 @@ def log_to_scenario(
     chunks: list[tuple[int, bytes]] = []
     offsets_ns: list[int] = []
     skipped = 0
-    for rec in flightlog.read_log(log_path, topics=[image_topic, topics.MAVLINK_IN]):
+    for rec in reader.read_log(log_path, topics=[image_topic, topics.MAVLINK_IN]):
         if rec.topic == topics.MAVLINK_IN:
             chunks.append((rec.publish_time_ns // 1000, bytes(rec.data)))
             offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
             continue
         try:
-            _cam, t_us, image = flightlog.decode_image(rec)
+            _cam, t_us, image = reader.decode_image(rec)
         except Exception as exc:  # name the file and the message at fault
             raise LogConversionError(
                 f"{log_path}: {image_topic} message at log time {rec.log_time_ns} ns "
@@ -386,7 +387,7 @@ def scenario_to_log(
     tmp = Path(tempfile.mkdtemp(prefix=f".{log_path.stem}-", dir=log_path.parent))
     n_results = 0
     try:
-        lcfg = flightlog.LoggingConfig(
+        lcfg = LoggingConfig(
             enabled=True,
             directory=str(tmp),
             image_format=image_format,  # type: ignore[arg-type]
@@ -395,7 +396,7 @@ def scenario_to_log(
             min_free_mb=0.0,
             queue_items=64,  # bounded memory; the producer waits (see _retry)
         )
-        writer = flightlog.FlightLogWriter(lcfg, tmp, wall_minus_mono_ns=0)
+        writer = FlightLogWriter(lcfg, tmp, wall_minus_mono_ns=0)
         writer.start(
             {
                 "camera0": json.dumps(scenario.camera.to_dict()),
@@ -437,7 +438,7 @@ def scenario_to_log(
                 f"messages (state {st.state}, {st.write_errors} write errors, "
                 f"{st.encode_errors} encode errors)"
             )
-        files = flightlog.log_files(tmp)
+        files = reader.log_files(tmp)
         if len(files) != 1:
             raise LogConversionError(
                 f"{tmp}: the flight log writer produced {len(files)} files, expected one"

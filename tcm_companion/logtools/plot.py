@@ -38,7 +38,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ..io import topics
+from ..flightlog import topics
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,7 @@ class PlotData:
 # --------------------------------------------------------------------------------------
 def load_log_data(path: str | Path) -> PlotData:
     """Read what the plots need from a flight log (file or rotated directory)."""
-    from ..io import flightlog
+    from ..flightlog import reader
     from .convert import check_log_path, parse_mavlink
 
     path = Path(path)
@@ -105,13 +105,13 @@ def load_log_data(path: str | Path) -> PlotData:
     data = PlotData(source=path.name)
     chunks: list[tuple[int, bytes]] = []
     wanted = [topics.RESULT, topics.HEALTH, topics.MAVLINK_IN]
-    for rec in flightlog.read_log(path, topics=wanted):
+    for rec in reader.read_log(path, topics=wanted):
         t_us = rec.publish_time_ns // 1000
         if rec.topic == topics.MAVLINK_IN:
             chunks.append((t_us, bytes(rec.data)))
             continue
         try:
-            doc = flightlog.decode_json(rec)
+            doc = reader.decode_json(rec)
         except ValueError as exc:
             log.warning("%s: %s message at %d us is not JSON (%s)", path, rec.topic, t_us, exc)
             continue
@@ -133,7 +133,7 @@ def load_scenario_data(scenario: Any, config: Any | None = None) -> PlotData:
     """Replay ``scenario`` (a directory or a loaded/simulated scenario) for the plots."""
     from ..config import AppConfig
     from ..io.scenario import load_scenario
-    from ..replay import run_replay
+    from ..replay.scenario import run_replay
     from .convert import replay_result_doc
 
     if isinstance(scenario, str | Path):

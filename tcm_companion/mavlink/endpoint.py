@@ -9,7 +9,7 @@ What it does, as a well-behaved companion component (mavlink.io microservices):
 - Requests the telemetry it needs with MAV_CMD_SET_MESSAGE_INTERVAL, one command at a
   time, retried, with a fallback and rate checks (:mod:`.streams`).
 - Telemetry messages become samples by the one rule replay uses too
-  (:func:`tcm_companion.io.samples.parse_telemetry`); unusable ones are
+  (:func:`tcm_companion.mavlink.samples.parse_telemetry`); unusable ones are
   :class:`TelemetryRejected`.
 - TIMESYNC requests; replies matched by ``ts1`` (the message has no target fields) and
   filtered (:mod:`.timesync`, which also says when an offset is fresh); the autopilot's
@@ -42,7 +42,6 @@ import numpy as np
 
 from ..core.pipeline import FrameResult, ObjectResult
 from ..core.telemetry import ClockSync, PositionSample
-from ..io.samples import TELEMETRY_TYPES, Rejected, parse_telemetry
 from . import outputs
 from . import tcm_dialect as d
 from .codec import MavlinkCodec, SigningConfig
@@ -59,6 +58,7 @@ from .events import (
     TelemetryRejected,
 )
 from .params import PARAMS, ParamTable
+from .samples import TELEMETRY_TYPES, Rejected, parse_telemetry
 from .statustext import CollisionConditions, StatustextQueue
 from .streams import StreamRequests
 from .timesync import TimesyncFilter

@@ -12,9 +12,9 @@ reading one shared :class:`~tcm_companion.core.telemetry.TelemetryBuffer`), the
 Its drivers only move things in and out, all through the same surface:
 
 - the asyncio daemon (:mod:`.daemon`: camera threads, a real transport, systemd),
-- the virtual-time SITL (:mod:`.sitl_virtual`: the mock autopilot, the simulated camera
+- the virtual-time SITL (:mod:`tcm_companion.sitl.virtual`: the mock autopilot, the simulated camera
   and modelled links on one simulated clock),
-- process replay of a flight log (:mod:`tcm_companion.replay_log`), and the tests.
+- process replay of a flight log (:mod:`tcm_companion.replay.log`), and the tests.
 
 The surface::
 
@@ -557,7 +557,7 @@ class Companion:
         clock_offset_us: float | None,
         override: str,
     ) -> FrameResult | None:
-        """Process replay (:mod:`tcm_companion.replay_log`): run camera ``camera_id``'s
+        """Process replay (:mod:`tcm_companion.replay.log`): run camera ``camera_id``'s
         pipeline on a logged frame as the daemon did when it processed it at
         ``process_mono_us`` — with the clock offset its pipeline used then and the
         input-health override it applied (logged, because replay does not re-create the

@@ -33,28 +33,41 @@ import dataclasses
 import logging
 import sys
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import cv2
 
-from ..config import AppConfig
-from ..core.pipeline import FrameResult
+from ..core.pipeline import FrameResult, PipelineConfig
 from ..io.aio import MONOTONIC, LoopClock
 from ..io.cameras.base import Frame
 from ..io.transports import Transport, TransportError, open_transport
 from ..mavlink.endpoint import CompanionEndpoint
-from ..mavlink.setup import make_endpoint, persist
-from .companion import Companion, FrameProcessed
+from .companion import Companion, DaemonConfig, FrameProcessed
+from .endpoint_setup import MavlinkSettings, make_endpoint, persist
 from .plumbing import CameraInput, DaemonSummary, NotifierLike, Plumbing
 
 if TYPE_CHECKING:
-    from .logsetup import FlightLog
+    from ..flightlog.handle import FlightLog
 
-__all__ = ["CameraInput", "Daemon", "DaemonSummary", "NotifierLike"]
+__all__ = ["CameraInput", "Daemon", "DaemonSummary", "NotifierLike", "ServiceConfig"]
 
 log = logging.getLogger(__name__)
 
 _LINK_RETRY_US = 100_000  # a closed or failing transport is read again after this
+
+
+class ServiceConfig(Protocol):
+    """The tables of the configuration the daemon reads (``tcm_companion.config.AppConfig``
+    is one; the daemon does not import the application's configuration)."""
+
+    @property
+    def daemon(self) -> DaemonConfig: ...
+
+    @property
+    def pipeline(self) -> PipelineConfig: ...
+
+    @property
+    def mavlink(self) -> MavlinkSettings: ...
 
 
 class Daemon:
@@ -68,7 +81,7 @@ class Daemon:
 
     def __init__(
         self,
-        config: AppConfig,
+        config: ServiceConfig,
         cameras: Sequence[CameraInput],
         *,
         transport: Transport | None = None,

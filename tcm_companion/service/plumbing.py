@@ -1,6 +1,6 @@
 """What a driver of the :class:`~.companion.Companion` does besides moving bytes and frames.
 
-The asyncio daemon (:mod:`.daemon`) and the virtual-time SITL (:mod:`.sitl_virtual`)
+The asyncio daemon (:mod:`.daemon`) and the virtual-time SITL (:mod:`tcm_companion.sitl.virtual`)
 differ only in where frames and bytes come from and which clock runs; everything they do
 with the Companion's inputs and outputs is here, once:
 
@@ -30,7 +30,7 @@ import numpy as np
 
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult
-from ..io import topics
+from ..flightlog import topics
 from ..io.allocator import trim_heap
 from ..io.cameras.base import CameraStats, Frame, FrameSource
 from ..mavlink import tcm_dialect as d
@@ -44,7 +44,7 @@ from .companion import (
 )
 
 if TYPE_CHECKING:
-    from .logsetup import FlightLog
+    from ..flightlog.handle import FlightLog
 
 log = logging.getLogger("tcm_companion.service.daemon")
 
@@ -226,7 +226,7 @@ class Plumbing:
 
     # -- details -------------------------------------------------------------------------------
     def _log_result(self, out: FrameProcessed, done_mono_us: int) -> None:
-        from .logdocs import annotation_circles, result_doc
+        from ..flightlog.docs import annotation_circles, result_doc
 
         assert self.flight_log is not None and out.result is not None
         doc = result_doc(

@@ -1,7 +1,7 @@
 --[[
 fake_params.lua - the fakes of ArduPilot's parameter bindings and uint32_t_ud that
 both hosts of tcm_avoid.lua share: harness.lua (the command-line tests) and
-tcm_companion/sim/lua_applet.py (the applet inside the mock autopilot, SITL).
+tcm_companion/sim/vehicle/lua_applet.py (the applet inside the mock autopilot, SITL).
 
   local uint32 = loadfile(".../fake_params.lua")(params)
 

@@ -5,8 +5,10 @@
 - :mod:`.reader` — :class:`CameraReader`, the per-camera daemon thread.
 - Sources: :class:`OpenCVDevice`, :class:`GStreamerSource`, :class:`VideoFileSource`
   (:mod:`.opencv`), :class:`FramesDirSource`, :class:`ScenarioSource`,
-  :class:`SimulatedCamera`, :class:`DualFisheyeSource` (with ``stitch.FisheyeStitcher``).
-- :mod:`.settings` — ``[camera]`` of config.toml and :func:`open_source`, the registry.
+  :class:`DualFisheyeSource` (with ``stitch.FisheyeStitcher``). The simulator's cameras
+  are the simulator's (:mod:`tcm_companion.sim.sources`).
+- :mod:`.settings` — ``[camera]`` of config.toml and :func:`open_source`, the registry
+  (:func:`register_source` adds a kind).
 
 Sources are imported lazily (``from tcm_companion.io.cameras import OpenCVDevice`` imports
 only :mod:`.opencv`), as python-can imports its interfaces.
@@ -35,11 +37,11 @@ _LAZY = {
     "gstreamer_available": ".opencv",
     "FramesDirSource": ".frames_dir",
     "ScenarioSource": ".scenario_source",
-    "SimulatedCamera": ".sim",
     "DualFisheyeSource": ".dual_fisheye",
     "CameraSettings": ".settings",
     "FisheyeCameraSettings": ".settings",
     "open_source": ".settings",
+    "register_source": ".settings",
 }
 
 __all__ = [

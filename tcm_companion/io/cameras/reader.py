@@ -20,7 +20,7 @@ The thread never dies of a source's failure:
 The decisions (open, read, accept or reject, reconnect with backoff) are one state
 machine, :class:`ReaderCore`, taking one step per call on a caller's clock; the thread
 runs it in a loop and sleeps its backoffs, and the virtual-time SITL
-(:mod:`tcm_companion.service.sitl_virtual`) steps the same machine on a simulated clock.
+(:mod:`tcm_companion.sitl.virtual`) steps the same machine on a simulated clock.
 
 Stopping: ``stop()`` sets a flag, calls the source's :meth:`FrameSource.interrupt` (which
 wakes the paced and simulated sources' waits at once) and joins the thread for at most

@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 
 class ScenarioSource(FrameSource):
     """Frames of a scenario directory (or an in-memory scenario object such as
-    :class:`~tcm_companion.sim.export.SimulatedScenario`). Finite.
+    :class:`~tcm_companion.sim.scene.export.SimulatedScenario`). Finite.
 
     The image size is the scenario camera's (``self.camera``, a
     :class:`~tcm_companion.core.camera.CameraModel`). A frame file that cannot be read is

@@ -5,7 +5,10 @@ Literal, tuples, nested frozen dataclasses) so the config loader can map the TOM
 onto it and type-check it; ranges are checked in ``__post_init__`` with errors that name
 the field. :func:`open_source` is the registry (python-can's ``can/interfaces``): one
 builder per ``source`` kind, each importing its backend lazily, each error naming the
-setting at fault.
+setting at fault. The devices and files are built here; the simulator's two kinds
+(``"sim"``, ``"sim_autopilot"``) are registered with :func:`register_source` by the
+simulator itself (:mod:`tcm_companion.sim.sources`), so that this layer does not import
+the layer above it: the application registers them before it opens a camera.
 
 Note for config files: a nested table (``[camera.back]``) is built from
 :class:`FisheyeCameraSettings`'s own defaults, not from ``CameraSettings.back``'s
@@ -25,14 +28,16 @@ from typing import TYPE_CHECKING, Literal
 from .base import CameraError, FrameSource
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from ...core.camera import CameraModel, Fisheye
-    from .sim import TruthFn
 
 SourceKind = Literal[
     "sim", "sim_autopilot", "device", "gstreamer", "file", "frames", "scenario", "dual_fisheye"
 ]
 SOURCE_KINDS: tuple[str, ...] = typing.get_args(SourceKind)
-#: What ``source = "sim_autopilot"`` puts in the field (:mod:`tcm_companion.sim.autopilot_camera`).
+#: What ``source = "sim_autopilot"`` puts in the field
+#: (:mod:`tcm_companion.sim.scene.autopilot_camera`).
 SimSceneKind = Literal["crossing", "headon", "static"]
 SIM_SCENE_KINDS: tuple[str, ...] = typing.get_args(SimSceneKind)
 #: One ball of ``sim_scene = "static"``: ``(n_m, e_m, d_m, radius_m)`` in the autopilot's local NED.
@@ -208,51 +213,16 @@ class CameraSettings:
 # --------------------------------------------------------------------------------------
 # The registry
 # --------------------------------------------------------------------------------------
-_Builder = Callable[["CameraSettings", "CameraModel", "TruthFn | None", str], FrameSource]
+#: ``truth_us(t_mono_us) -> (scenario_t_s, pos_ned_m (3,), R_ned_from_body (3, 3))`` or
+#: None while there is no vehicle yet; ``t_mono_us`` on the camera's clock (the companion
+#: monotonic clock, or the simulated one). Only the simulator's ``"sim"`` source takes it.
+TruthFn = Callable[[int], "tuple[float, np.ndarray, np.ndarray] | None"]
 
+#: Builds the source of one kind: ``(settings, camera_model, truth_us, scenario) -> source``.
+SourceBuilder = Callable[["CameraSettings", "CameraModel", "TruthFn | None", str], FrameSource]
 
-def _sim(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
-) -> FrameSource:
-    if truth_us is None:
-        raise CameraError(
-            "camera.source = 'sim': the simulator renders the vehicle's true pose, so it "
-            "needs the mock autopilot's truth (SITL: tcm-companion sitl); on a real vehicle "
-            "set camera.source to 'device', 'gstreamer' or 'dual_fisheye'"
-        )
-    from .sim import SimulatedCamera
-
-    return SimulatedCamera(
-        cam, scenario, truth_us, fps=s.fps, seed=s.sim_seed, noise_dn=s.sim_noise_dn
-    )
-
-
-def _sim_autopilot(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
-) -> FrameSource:
-    from ...sim.autopilot_camera import AutopilotSimCamera, SceneSettings, check_url
-
-    try:
-        check_url(s.sim_url)
-    except CameraError as exc:
-        raise CameraError(f"camera.sim_url: {exc}") from None
-    scene = SceneSettings(
-        kind=s.sim_scene,
-        contact_s=s.sim_contact_s,
-        ball_speed_mps=s.sim_ball_speed_mps,
-        side_deg=s.sim_side_deg,
-        ball_radius_m=s.sim_ball_radius_m,
-        static_balls=s.sim_static_balls,
-    )
-    return AutopilotSimCamera(
-        cam,
-        s.sim_url,
-        scene,
-        fps=s.fps,
-        heading_deg=s.sim_heading_deg,
-        seed=s.sim_seed,
-        noise_dn=s.sim_noise_dn,
-    )
+#: The module that registers each kind not built here (named in the error when it was not).
+REGISTERED_BY = {"sim": "tcm_companion.sim.sources", "sim_autopilot": "tcm_companion.sim.sources"}
 
 
 def _device(
@@ -346,9 +316,8 @@ def _dual_fisheye(
     return DualFisheyeSource(device("front", s.front), device("back", s.back), stitcher)
 
 
-BUILDERS: dict[str, _Builder] = {
-    "sim": _sim,
-    "sim_autopilot": _sim_autopilot,
+#: The builder of each ``source`` kind; the simulator's are added by :func:`register_source`.
+BUILDERS: dict[str, SourceBuilder] = {
     "device": _device,
     "gstreamer": _gstreamer,
     "file": _file,
@@ -356,6 +325,14 @@ BUILDERS: dict[str, _Builder] = {
     "scenario": _scenario,
     "dual_fisheye": _dual_fisheye,
 }
+
+
+def register_source(kind: str, builder: SourceBuilder) -> None:
+    """Make :func:`open_source` build ``source = kind`` with ``builder`` (registering a
+    kind again replaces its builder). ``kind`` must be one of :data:`SourceKind`."""
+    if kind not in SOURCE_KINDS:
+        raise ValueError(f"camera source kind must be one of {list(SOURCE_KINDS)}, got {kind!r}")
+    BUILDERS[kind] = builder
 
 
 def open_source(
@@ -369,12 +346,19 @@ def open_source(
 
     ``truth_us`` (``t_us -> (scenario_t_s, pos_ned_m, R_ned_from_body)``) and
     ``scenario`` are for the simulator (``"sim"``) only; ``"sim_autopilot"`` takes its
-    pose from the autopilot at ``sim_url`` instead. Raises :class:`CameraError` naming the
-    setting at fault; the device itself is opened later, by the reader thread.
+    pose from the autopilot at ``sim_url`` instead (both registered by
+    :func:`tcm_companion.sim.sources.register_sim_sources`). Raises :class:`CameraError`
+    naming the setting at fault; the device itself is opened later, by the reader thread.
     """
     try:
         builder = BUILDERS[settings.source]
     except KeyError:
+        where = REGISTERED_BY.get(settings.source)
+        if where is not None:
+            raise CameraError(
+                f"camera.source = {settings.source!r}: no builder registered; {where} "
+                "registers the simulator's sources (register_sim_sources())"
+            ) from None
         raise CameraError(
             f"camera.source: unknown source {settings.source!r} (known: {', '.join(BUILDERS)})"
         ) from None

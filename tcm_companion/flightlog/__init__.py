@@ -1,0 +1,15 @@
+"""The flight log: MCAP files of every frame, MAVLink byte, result and health record.
+
+- :mod:`.writer` — :class:`~.writer.LoggingConfig` (``[logging]``), the
+  :class:`~.writer.FlightLogWriter` (its own thread, bounded queue, rotation, disk floor)
+  and its :class:`~.writer.FlightLogStats`.
+- :mod:`.handle` — :class:`~.handle.FlightLog`, what the daemon's plumbing writes through
+  (live or deterministic).
+- :mod:`.reader` — reading logs back (also after a crash).
+- :mod:`.topics` — the table of topics every writer and reader names.
+- :mod:`.docs` — the per-frame result documents the daemon logs.
+
+Opening a run's log from the configuration is the application's
+(:mod:`tcm_companion.logsetup`). The submodules are imported on their own; this package
+imports nothing, so that :mod:`.topics` does not pull in MCAP.
+"""

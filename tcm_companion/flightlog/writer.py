@@ -1,0 +1,941 @@
+"""The field flight log: MCAP files written off the hot path, crash-safe, rotated.
+
+Writing
+-------
+:class:`FlightLogWriter` takes camera frames, their annotations, MAVLink bytes and JSON
+documents from the daemon's asyncio thread through non-blocking ``log_*`` calls into one
+bounded queue (``[logging] queue_items``). A full queue costs the item (counted), never a
+wait. ONE writer thread does everything else: JPEG/PNG encoding, JSON and protobuf
+serialisation, MCAP framing, compression and file IO.
+
+*Ownership.* ``log_frame`` keeps a reference to the image array, it does not copy it: the
+caller must not modify a frame after handing it over (the daemon never does: a captured
+frame is immutable). The same holds for the ``circles`` list and the JSON ``doc``. The
+queue therefore holds at most ``queue_items`` frames: at 360×220 BGR that is at most
+``queue_items × 238 kB`` (61 MB for 256) while the disk stalls.
+
+*Time.* Every ``t_us`` is the companion's monotonic clock in µs. A message's MCAP
+``log_time`` is wall-clock ns, ``t_us·1000 + wall_minus_mono_ns`` (the offset is measured
+once, at construction, and stored in the metadata record), and its ``publish_time`` is
+the monotonic time in ns, ``t_us·1000``: replay runs on exactly the daemon's clock, viewers
+(Foxglove) show wall time.
+
+*Crash safety.* Chunks are ``chunk_size_bytes`` (256 KiB), and the writer thread ends the
+open chunk and flushes the file to the OS at least every ``flush_interval_s`` (mcap's
+``Writer.flush()``). A SIGKILL (or a crash of the interpreter) then loses at most that
+much: the non-seeking reader used by :func:`read_log` reads every complete chunk of a
+file that has no summary or footer. (mcap's defaults, 1 MiB chunks and no flushing, and
+the seeking reader, which needs the footer, recover nothing from a killed file;
+``tests/test_flightlog.py`` shows both.) Power loss is a different matter: only the file
+close on rotation/stop calls ``fsync``.
+
+*Files.* ``tcm-YYYYmmdd-HHMMSS-NNN.mcap`` (UTC wall time of :meth:`FlightLogWriter.start`,
+part counter ``NNN``): a new part when the current one exceeds ``rotate_size_mb`` (MB =
+10⁶ bytes) or ``rotate_interval_s``; every part starts with the ``"tcm-companion"``
+metadata record, and a closed part has the full MCAP summary (index, statistics), so each
+part opens on its own in Foxglove or ``mcap info``.
+
+*Disk.* Below ``min_free_mb`` of free space (checked at most once a second, in the writer
+thread) frames and annotations are dropped (counted); MAVLink and JSON continue. A write
+error (ENOSPC, EIO, the directory or file removed) never ends the thread: it is counted,
+reported once through ``on_event``, the state becomes ``"fault"`` (items are dropped and
+counted) and a new part is tried every ``retry_interval_s``.
+
+*Events.* ``on_event(severity, text)`` is called from the writer thread: it must be
+thread-safe and quick (e.g. ``loop.call_soon_threadsafe``); its exceptions are swallowed.
+
+*Counts.* Every call is counted once, in one :class:`FlightLogStats` the writer keeps
+under its lock; :attr:`FlightLogWriter.stats` is a copy of it.
+
+Topics
+------
+The table of topics is :mod:`.topics`: ``/camera{N}/image`` and ``/camera{N}/annotations``
+(protobuf, Foxglove's schemas, frame_id ``camera{N}``), ``/mavlink/in`` and
+``/mavlink/out`` (raw bytes, encoding ``"mavlink"``, no schema), and the JSON documents
+``/tcm/...`` (schema encoding ``"jsonschema"``, permissive; :meth:`FlightLogWriter.log_json`
+takes any topic).
+
+Reading
+-------
+:mod:`.reader` (:func:`read_log`, :func:`read_metadata`, :func:`decode_image`,
+:func:`decode_json`, :func:`log_files`), re-exported here.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import logging
+import math
+import os
+import queue
+import shutil
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any, Literal
+
+import cv2
+import numpy as np
+from foxglove_schemas_protobuf.CircleAnnotation_pb2 import CircleAnnotation
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+from foxglove_schemas_protobuf.Point2_pb2 import Point2
+from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from google.protobuf.timestamp_pb2 import Timestamp
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+from .. import __version__
+from . import topics
+from .reader import (
+    METADATA_NAME,
+    LogRecord,
+    decode_image,
+    decode_json,
+    log_files,
+    part_name,
+    read_log,
+    read_metadata,
+)
+from .topics import ANNOTATIONS_SCHEMA, IMAGE_SCHEMA
+
+__all__ = [
+    "ANNOTATIONS_SCHEMA",
+    "IMAGE_SCHEMA",
+    "LOG_FORMAT",
+    "MAVLINK_TOPICS",
+    "METADATA_NAME",
+    "FlightLogStats",
+    "FlightLogWriter",
+    "LogRecord",
+    "LogState",
+    "LoggingConfig",
+    "decode_image",
+    "decode_json",
+    "log_files",
+    "read_log",
+    "read_metadata",
+]
+
+log = logging.getLogger(__name__)
+
+LOG_FORMAT = "tcm-flightlog/1"
+MAVLINK_TOPICS = topics.MAVLINK  # log_mavlink's direction -> topic
+
+# MAVLink enum TCM_LOG_STATE (tcm_companion/mavlink/tcm.xml)
+TCM_LOG_STATE_OFF = 0
+TCM_LOG_STATE_RECORDING = 1
+TCM_LOG_STATE_FAULT = 2
+
+LogState = Literal["off", "recording", "frames paused (disk)", "fault"]
+_STATE_CODES: dict[str, int] = {
+    "off": TCM_LOG_STATE_OFF,
+    "recording": TCM_LOG_STATE_RECORDING,
+    "frames paused (disk)": TCM_LOG_STATE_RECORDING,
+    "fault": TCM_LOG_STATE_FAULT,
+}
+
+_MB = 1_000_000
+
+
+# ---------------------------------------------------------------------------------------
+# Configuration
+
+
+@dataclass(frozen=True)
+class LoggingConfig:
+    """Table ``[logging]`` of config.toml."""
+
+    enabled: bool = True
+    directory: str = ""  # "": resolved by the caller ($LOGS_DIRECTORY or a default)
+    image_format: Literal["jpeg", "png"] = "jpeg"  # png = lossless (exact replay)
+    jpeg_quality: int = 65  # ~9.7 kB per 360x220 frame: under 1 GB per hour at 25 Hz
+    queue_items: int = 256  # bounded queue between the daemon and the writer thread
+    chunk_size_bytes: int = 262_144
+    flush_interval_s: float = 0.5  # at most this much is lost on a kill -9
+    rotate_size_mb: float = 1024.0
+    rotate_interval_s: float = 3600.0
+    min_free_mb: float = 500.0  # below this free space, frames stop being logged
+
+    def __post_init__(self) -> None:
+        def bad(name: str, want: str) -> ValueError:
+            return ValueError(f"{name} must be {want}, got {getattr(self, name)!r}")
+
+        if not isinstance(self.enabled, bool):
+            raise bad("enabled", "true or false")
+        if not isinstance(self.directory, str):
+            raise bad("directory", "a string")
+        if self.image_format not in ("jpeg", "png"):
+            raise bad("image_format", '"jpeg" or "png"')
+        if not _is_int(self.jpeg_quality) or not 1 <= self.jpeg_quality <= 100:
+            raise bad("jpeg_quality", "an integer in 1..100")
+        if not _is_int(self.queue_items) or not 1 <= self.queue_items <= 1_000_000:
+            raise bad("queue_items", "an integer in 1..1000000")
+        if not _is_int(self.chunk_size_bytes) or not 1024 <= self.chunk_size_bytes <= 1 << 30:
+            raise bad("chunk_size_bytes", "an integer in 1024..1073741824")
+        if not _is_num(self.flush_interval_s) or not 0 < self.flush_interval_s <= 60:
+            raise bad("flush_interval_s", "in (0, 60] s")
+        if not _is_num(self.rotate_size_mb) or not self.rotate_size_mb > 0:
+            raise bad("rotate_size_mb", "> 0")
+        if not _is_num(self.rotate_interval_s) or not self.rotate_interval_s > 0:
+            raise bad("rotate_interval_s", "> 0 s")
+        if not _is_num(self.min_free_mb) or not self.min_free_mb >= 0:
+            raise bad("min_free_mb", ">= 0")
+
+
+def _is_int(x: object) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _is_num(x: object) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+# ---------------------------------------------------------------------------------------
+# Statistics
+
+# What becomes of a logged item (the suffix of a FlightLogStats counter).
+Outcome = Literal["queued", "logged", "dropped_queue", "dropped_disk", "dropped_error"]
+_FRAME, _ANNOT, _MAV, _JSON = 0, 1, 2, 3  # the kinds of queued item
+
+
+@dataclass
+class FlightLogStats:
+    """The writer's counts: the writer keeps one under its lock and counts into it;
+    :attr:`FlightLogWriter.stats` returns a copy (a snapshot) with the live values
+    (bytes, files, state, queue depth) filled in.
+
+    Once stopped, every ``log_frame`` call is exactly one of ``frames_logged``,
+    ``frames_dropped_queue`` (queue full, or not recording, or still queued when ``stop``
+    timed out), ``frames_dropped_disk`` (free-space floor) and ``frames_dropped_error``
+    (log in fault, or the image could not be encoded); ``frames_dropped_error`` is 0 unless
+    something failed. ``messages_*`` count the other calls (annotations, MAVLink, JSON) the
+    same way. ``write_errors`` counts every failed file operation, retries included.
+    """
+
+    frames_queued: int = 0
+    frames_logged: int = 0
+    frames_dropped_queue: int = 0
+    frames_dropped_disk: int = 0
+    messages_logged: int = 0
+    messages_dropped_queue: int = 0
+    bytes_written: int = 0
+    files: list[Path] = field(default_factory=list)
+    write_errors: int = 0
+    state: LogState = "off"
+    frames_dropped_error: int = 0
+    messages_queued: int = 0
+    messages_dropped_disk: int = 0  # annotations under the free-space floor
+    messages_dropped_error: int = 0
+    encode_errors: int = 0
+    writer_cpu_s: float = 0.0  # CPU time of the writer thread
+    queue_depth: int = 0
+
+    def count(self, kind: int, outcome: Outcome) -> None:
+        """One more frame (``kind`` :data:`_FRAME`) or other message, ``outcome``."""
+        name = f"{'frames' if kind == _FRAME else 'messages'}_{outcome}"
+        setattr(self, name, getattr(self, name) + 1)
+
+    @property
+    def log_state_code(self) -> int:
+        """The state as MAVLink ``TCM_LOG_STATE`` (OFF=0, RECORDING=1, FAULT=2)."""
+        return _STATE_CODES[self.state]
+
+
+# ---------------------------------------------------------------------------------------
+# Encoding helpers (writer thread)
+
+
+def _file_descriptor_set(message_class: Any) -> bytes:
+    """The message's .proto file and its dependencies, as MCAP's protobuf schema data."""
+    fds = FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: Any) -> None:
+        if fd.name in seen:
+            return
+        seen.add(fd.name)
+        for dep in fd.dependencies:
+            add(dep)
+        fd.CopyToProto(fds.file.add())
+
+    add(message_class.DESCRIPTOR.file)
+    return fds.SerializeToString()
+
+
+_PROTO_SCHEMAS: dict[str, bytes] = {}
+
+
+def _proto_schema(name: str) -> bytes:
+    if name not in _PROTO_SCHEMAS:
+        cls = CompressedImage if name == IMAGE_SCHEMA else ImageAnnotations
+        _PROTO_SCHEMAS[name] = _file_descriptor_set(cls)
+    return _PROTO_SCHEMAS[name]
+
+
+def _timestamp(ns: int) -> Timestamp:
+    return Timestamp(seconds=ns // 1_000_000_000, nanos=ns % 1_000_000_000)
+
+
+_RED = (1.0, 0.15, 0.15)
+_GREEN = (0.1, 0.85, 0.2)
+_GREY = (0.6, 0.6, 0.6)
+
+
+def _label_rgb(label: str) -> tuple[float, float, float]:
+    if label.startswith("moving"):
+        return _RED
+    if label.startswith("stationary"):
+        return _GREEN
+    return _GREY
+
+
+def _annotations(ts_ns: int, circles: tuple[tuple[float, float, float, str], ...]) -> bytes:
+    ts = _timestamp(ts_ns)
+    msg = ImageAnnotations()
+    if "timestamp" in ImageAnnotations.DESCRIPTOR.fields_by_name:  # schemas >= 0.4
+        msg.timestamp.CopyFrom(ts)
+    for u, v, r, label in circles:
+        u, v, r, label = float(u), float(v), float(r), str(label)
+        rgb = _label_rgb(label)
+        msg.circles.append(
+            CircleAnnotation(
+                timestamp=ts,
+                position=Point2(x=u, y=v),
+                diameter=2.0 * r,
+                thickness=2.0,
+                fill_color=Color(r=rgb[0], g=rgb[1], b=rgb[2], a=0.0),
+                outline_color=Color(r=rgb[0], g=rgb[1], b=rgb[2], a=1.0),
+            )
+        )
+        msg.texts.append(
+            TextAnnotation(
+                timestamp=ts,
+                position=Point2(x=u - r, y=max(v - r - 3.0, 10.0)),
+                text=label,
+                font_size=11.0,
+                text_color=Color(r=rgb[0], g=rgb[1], b=rgb[2], a=1.0),
+                background_color=Color(r=0.0, g=0.0, b=0.0, a=0.5),
+            )
+        )
+    return msg.SerializeToString()
+
+
+def _jsonable(x: Any) -> Any:
+    """``x`` with numpy scalars/arrays made plain and NaN/±inf made null (strict JSON)."""
+    if x is None or isinstance(x, str | bool | int):
+        return x
+    if isinstance(x, float):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple | set | frozenset):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        return _jsonable(x.item())
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, bytes | bytearray):
+        return x.hex()
+    return str(x)
+
+
+def _metadata_value(v: Any) -> str:
+    return v if isinstance(v, str) else json.dumps(_jsonable(v), sort_keys=True)
+
+
+def _disk_free(path: Path) -> int:
+    return shutil.disk_usage(path).free
+
+
+def _flush_writer(writer: Writer, fh: IO[bytes]) -> None:
+    """End the open chunk and push everything to the OS (mcap's ``Writer.flush()``; the
+    same steps through its private methods on versions before it existed)."""
+    flush = getattr(writer, "flush", None)
+    if callable(flush):
+        flush()
+    else:  # pragma: no cover - old mcap
+        getattr(writer, "_Writer__finalize_chunk")()  # noqa: B009 (name-mangled)
+        getattr(writer, "_Writer__flush")()  # noqa: B009
+    fh.flush()
+
+
+# ---------------------------------------------------------------------------------------
+# Writer
+
+_STOP = object()
+_Item = tuple[Any, ...]
+
+
+class FlightLogWriter:
+    """Writes the flight log from one background thread; see the module docstring.
+
+    ``free_check_interval_s`` (how often free space is looked at) and
+    ``retry_interval_s`` (how often a new part is tried while in fault) exist for tests.
+
+    ``deterministic`` (a simulation on its own clock, ``sitl --clock virtual``): the
+    file's bytes depend only on what was logged. Chunks end, and parts rotate by time, on
+    the records' own time stamps instead of the wall clock's (the same crash-safety
+    bound, in the log's time); a producer waits for room instead of dropping; parts are
+    named after ``session`` (e.g. the simulation's start time) instead of the wall clock.
+    """
+
+    def __init__(
+        self,
+        config: LoggingConfig,
+        directory: str | Path,
+        *,
+        wall_minus_mono_ns: int | None = None,
+        free_bytes: Callable[[Path], int] | None = None,
+        on_event: Callable[[str, str], None] | None = None,
+        free_check_interval_s: float = 1.0,
+        retry_interval_s: float = 3.0,
+        deterministic: bool = False,
+        session: str | None = None,
+    ) -> None:
+        self.config = config
+        self.deterministic = deterministic
+        self._session_name = session
+        self.directory = Path(directory)
+        if wall_minus_mono_ns is None:
+            wall_minus_mono_ns = time.time_ns() - time.monotonic_ns()
+        self.wall_minus_mono_ns = int(wall_minus_mono_ns)
+        self._free_bytes = free_bytes if free_bytes is not None else _disk_free
+        self._on_event = on_event
+        self._free_check_interval_s = max(float(free_check_interval_s), 1e-3)
+        self._retry_interval_s = max(float(retry_interval_s), 1e-3)
+        self._rotate_bytes = int(config.rotate_size_mb * _MB)
+        self._min_free_bytes = config.min_free_mb * _MB
+
+        self._q: queue.Queue[Any] = queue.Queue(maxsize=config.queue_items)
+        self._lock = threading.Lock()
+        self._accepting = False
+        self._started = False
+        self._stopped = False
+        self._stop_evt = threading.Event()
+        self._drain_deadline = math.inf
+        self._thread: threading.Thread | None = None
+
+        # The counts (producer and writer side, under the lock); bytes_written is the
+        # closed parts' bytes plus the open part's, kept apart while it grows.
+        self._counts = FlightLogStats()
+        self._bytes_closed = 0
+        self._bytes_current = 0
+
+        # writer-thread state (touched by start() before the thread exists)
+        self._metadata: dict[str, str] = {}
+        self._session = ""
+        self._counter = 0
+        self._fh: IO[bytes] | None = None
+        self._mcap: Writer | None = None
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._sequence: dict[int, int] = {}
+        self._file_opened_at = 0.0
+        self._dirty = False
+        self._fault = False
+        self._fault_reported = False
+        self._encode_error_reported = False
+        self._disk_low = False
+        self._next_free_check = 0.0
+        self._next_retry = 0.0
+        # deterministic mode: the records' time of the next flush and of the part's start
+        self._next_flush_record_us: int | None = None
+        self._part_started_record_us: int | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def start(self, metadata: Mapping[str, Any]) -> None:
+        """Create the directory, open the first part, write the metadata record and start
+        the writer thread. Never raises for IO: a failure puts the log in ``"fault"`` and
+        the thread keeps retrying. Non-string metadata values are stored as JSON."""
+        if self._started:
+            raise RuntimeError("FlightLogWriter.start() called twice")
+        self._started = True
+        meta = {str(k): _metadata_value(v) for k, v in metadata.items()}
+        meta.update(
+            log_format=LOG_FORMAT,
+            wall_minus_mono_ns=str(self.wall_minus_mono_ns),
+            image_format=self.config.image_format,
+            jpeg_quality=str(self.config.jpeg_quality),
+        )
+        self._metadata = meta
+        if not self.config.enabled:
+            return
+        self._session = self._session_name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+        now = time.monotonic()
+        try:
+            self._open_file()
+        except Exception as e:
+            self._enter_fault(e, now)
+        self._check_free(now)
+        self._next_free_check = now + self._free_check_interval_s
+        self._accepting = True
+        self._thread = threading.Thread(target=self._run, name="flightlog", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Write what is queued (for at most ~80 % of ``timeout_s``; the rest is dropped and
+        counted), close the part with its summary and join the thread. Idempotent."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self._accepting = False
+        t0 = time.monotonic()
+        self._drain_deadline = t0 + 0.8 * max(timeout_s, 0.0)
+        self._stop_evt.set()
+        with contextlib.suppress(queue.Full):
+            self._q.put_nowait(_STOP)
+        if self._thread is not None:
+            self._thread.join(max(0.0, t0 + timeout_s - time.monotonic()))
+            if self._thread.is_alive():
+                log.warning("flight log writer did not stop within %.1f s", timeout_s)
+                return
+        self._discard_queue()  # anything a racing producer put after the thread ended
+
+    # -- producers (asyncio thread): never block, never raise ---------------------------
+
+    def log_frame(self, camera_id: int, t_capture_us: int, image: np.ndarray) -> bool:
+        """Queue a camera frame (BGR or grey uint8; a reference is kept, not a copy)."""
+        return self._put((_FRAME, camera_id, t_capture_us, image))
+
+    def log_annotations(
+        self,
+        camera_id: int,
+        t_capture_us: int,
+        circles: list[tuple[float, float, float, str]],
+    ) -> bool:
+        """Queue the objects of a frame: ``(u px, v px, radius px, label)`` each; the colour
+        follows the label's prefix (moving red, stationary green, else grey)."""
+        try:
+            item = (_ANNOT, camera_id, t_capture_us, tuple(circles))  # a few tuples: cheap
+        except Exception:
+            item = (_ANNOT, camera_id, t_capture_us, ())
+        return self._put(item)
+
+    def log_mavlink(self, direction: Literal["in", "out"], t_us: int, data: bytes) -> bool:
+        """Queue raw MAVLink bytes as received (``"in"``) or sent (``"out"``). ``bytes``
+        are kept as they are; a bytearray or memoryview (a reusable buffer) is copied."""
+        if type(data) is not bytes:
+            try:
+                data = bytes(data)
+            except Exception:
+                data = b""
+        return self._put((_MAV, direction, t_us, data))
+
+    def log_json(self, topic: str, t_us: int, doc: Mapping[str, Any]) -> bool:
+        """Queue a JSON document on ``topic`` (e.g. ``/tcm/result``)."""
+        return self._put((_JSON, topic, t_us, doc))
+
+    def _put(self, item: _Item) -> bool:
+        ok = False
+        if self._accepting:
+            try:
+                if self.deterministic:  # wait for room (a simulation's time does not pass)
+                    while self._accepting and self.alive:
+                        try:
+                            self._q.put(item, timeout=0.05)
+                            ok = True
+                            break
+                        except queue.Full:
+                            continue
+                else:
+                    self._q.put_nowait(item)
+                    ok = True
+            except Exception:  # queue.Full, or anything: never raise into the daemon
+                pass
+        c = self._counts
+        with self._lock:  # spelt out: this is the daemon's path (FlightLogStats.count is not)
+            if item[0] == _FRAME:
+                if ok:
+                    c.frames_queued += 1
+                else:
+                    c.frames_dropped_queue += 1
+            elif ok:
+                c.messages_queued += 1
+            else:
+                c.messages_dropped_queue += 1
+        return ok
+
+    # -- state -------------------------------------------------------------------------
+
+    @property
+    def state(self) -> LogState:
+        if not self._started or not self.config.enabled or self._stopped:
+            return "off"
+        if self._fault:
+            return "fault"
+        if self._disk_low:
+            return "frames paused (disk)"
+        return "recording"
+
+    @property
+    def log_state_code(self) -> int:
+        """The state as MAVLink ``TCM_LOG_STATE`` (OFF=0, RECORDING=1, FAULT=2)."""
+        return _STATE_CODES[self.state]
+
+    @property
+    def alive(self) -> bool:
+        """The writer thread is running (for the daemon's watchdog)."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait_drained(self, timeout_s: float = 60.0) -> bool:
+        """Block until the writer has handled every item queued so far (or ``timeout_s``
+        passed, or the thread ended); True when drained. For deterministic counters."""
+        deadline = time.monotonic() + timeout_s
+        while self.alive and time.monotonic() < deadline:
+            with self._lock:
+                c = self._counts
+                frames = c.frames_logged + c.frames_dropped_disk + c.frames_dropped_error
+                msgs = c.messages_logged + c.messages_dropped_disk + c.messages_dropped_error
+                if frames >= c.frames_queued and msgs >= c.messages_queued:
+                    return True
+            time.sleep(0.0005)
+        return not self.alive
+
+    @property
+    def stats(self) -> FlightLogStats:
+        """A snapshot of the counts (see :class:`FlightLogStats`)."""
+        with self._lock:
+            return replace(
+                self._counts,
+                bytes_written=self._bytes_closed + self._bytes_current,
+                files=list(self._counts.files),
+                state=self.state,
+                queue_depth=self._q.qsize(),
+            )
+
+    # -- writer thread -----------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except BaseException:  # pragma: no cover - a bug; keep the daemon alive
+            log.exception("flight log writer thread failed")
+            self._enter_fault(RuntimeError("writer thread failed"), time.monotonic())
+        finally:
+            self._counts.writer_cpu_s = time.thread_time()
+
+    def _loop(self) -> None:
+        interval = self.config.flush_interval_s
+        next_flush = time.monotonic() + interval
+        while not self._stop_evt.is_set():
+            wake = min(next_flush, self._next_free_check)
+            if self._fault:
+                wake = min(wake, self._next_retry)
+            try:
+                item = self._q.get(timeout=max(0.0, wake - time.monotonic()))
+            except queue.Empty:
+                item = None
+            if item is not None and item is not _STOP:
+                self._process(item)
+            now = time.monotonic()
+            self._housekeeping(now)
+            if now >= next_flush and not self.deterministic:
+                self._flush(now)
+                next_flush = now + interval
+            self._counts.writer_cpu_s = time.thread_time()
+        while time.monotonic() < self._drain_deadline:
+            try:
+                item = self._q.get_nowait()
+            except queue.Empty:
+                break
+            if item is not _STOP:
+                self._process(item)
+        self._discard_queue()
+        self._close_file()
+
+    def _discard_queue(self) -> None:
+        while True:
+            try:
+                item = self._q.get_nowait()
+            except queue.Empty:
+                return
+            if item is not _STOP:
+                self._count(item[0], "dropped_queue")
+
+    def _count(self, kind: int, outcome: Outcome) -> None:
+        with self._lock:
+            self._counts.count(kind, outcome)
+
+    def _process(self, item: _Item) -> None:
+        if self.deterministic:
+            self._record_time_housekeeping(int(item[2]))
+        kind = item[0]
+        if kind in (_FRAME, _ANNOT) and self._disk_low:
+            self._count(kind, "dropped_disk")
+            return
+        if self._mcap is None:
+            self._count(kind, "dropped_error")
+            return
+        try:
+            topic, channel_kind, t_us, payload = self._encode(item)
+            publish_ns = int(t_us) * 1000
+            log_ns = publish_ns + self.wall_minus_mono_ns
+            if not (0 <= publish_ns < 1 << 64 and 0 <= log_ns < 1 << 64):
+                raise ValueError(f"time stamp out of range: t_us={t_us}")
+        except Exception as e:
+            with self._lock:
+                self._counts.count(kind, "dropped_error")
+                self._counts.encode_errors += 1
+            if not self._encode_error_reported:
+                self._encode_error_reported = True
+                self._event("warning", f"log: cannot encode {_KIND_NAMES[kind]}: {e}")
+            return
+        try:
+            self._write(topic, channel_kind, log_ns, publish_ns, payload)
+        except Exception as e:
+            self._count(kind, "dropped_error")
+            self._enter_fault(e, time.monotonic())
+            return
+        self._count(kind, "logged")
+        if self._fh is not None and self._fh.tell() >= self._rotate_bytes:
+            self._rotate(time.monotonic())
+
+    def _encode(self, item: _Item) -> tuple[str, str, int, bytes]:
+        """(topic, channel kind, t_us, payload) of a queued item."""
+        kind = item[0]
+        if kind == _MAV:
+            _, direction, t_us, data = item
+            return topics.MAVLINK[direction], "mavlink", t_us, data
+        if kind == _JSON:
+            _, topic, t_us, doc = item
+            text = json.dumps(_jsonable(doc), separators=(",", ":"), allow_nan=False)
+            return str(topic), "json", t_us, text.encode()
+        _, camera_id, t_us, obj = item
+        camera_id = int(camera_id)
+        ts_ns = int(t_us) * 1000 + self.wall_minus_mono_ns
+        if kind == _FRAME:
+            msg = CompressedImage(
+                timestamp=_timestamp(ts_ns),
+                frame_id=topics.camera_frame_id(camera_id),
+                data=self._encode_image(obj),
+                format=self.config.image_format,
+            )
+            return topics.camera_image(camera_id), IMAGE_SCHEMA, t_us, msg.SerializeToString()
+        payload = _annotations(ts_ns, tuple(obj))
+        return topics.camera_annotations(camera_id), ANNOTATIONS_SCHEMA, t_us, payload
+
+    def _encode_image(self, image: np.ndarray) -> bytes:
+        """JPEG (``jpeg_quality``) or PNG bytes of a BGR/grey uint8 image."""
+        img = np.ascontiguousarray(image)
+        if img.dtype != np.uint8:
+            raise ValueError(f"image dtype {img.dtype}, expected uint8")
+        if self.config.image_format == "jpeg":
+            ok, buf = cv2.imencode(
+                ".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.config.jpeg_quality]
+            )
+        else:
+            ok, buf = cv2.imencode(".png", img)
+        if not ok:
+            raise ValueError(f"cv2.imencode failed for a {img.shape} image")
+        return buf.tobytes()
+
+    def _write(self, topic: str, channel_kind: str, log_ns: int, pub_ns: int, data: bytes) -> None:
+        assert self._mcap is not None
+        channel_id = self._channels.get(topic)
+        if channel_id is None:
+            channel_id = self._register(topic, channel_kind)
+        seq = self._sequence.get(channel_id, 0)
+        self._sequence[channel_id] = (seq + 1) & 0xFFFFFFFF
+        self._mcap.add_message(
+            channel_id=channel_id, log_time=log_ns, data=data, publish_time=pub_ns, sequence=seq
+        )
+        self._dirty = True
+
+    def _register(self, topic: str, channel_kind: str) -> int:
+        assert self._mcap is not None
+        if channel_kind == "mavlink":
+            schema_id, encoding = 0, "mavlink"
+        elif channel_kind == "json":
+            schema = json.dumps({"title": topic, "type": "object"}).encode()
+            schema_id = self._mcap.register_schema(name=topic, encoding="jsonschema", data=schema)
+            encoding = "json"
+        else:
+            if channel_kind not in self._schemas:
+                self._schemas[channel_kind] = self._mcap.register_schema(
+                    name=channel_kind, encoding="protobuf", data=_proto_schema(channel_kind)
+                )
+            schema_id, encoding = self._schemas[channel_kind], "protobuf"
+        channel_id = self._mcap.register_channel(
+            topic=topic, message_encoding=encoding, schema_id=schema_id
+        )
+        self._channels[topic] = channel_id
+        return channel_id
+
+    def _record_time_housekeeping(self, t_us: int) -> None:
+        """Deterministic mode: flush and rotate by the records' time (every item's
+        ``t_us``), before writing the first record past the interval."""
+        step_us = round(self.config.flush_interval_s * 1e6)
+        if self._next_flush_record_us is None:
+            self._next_flush_record_us = t_us + step_us
+        elif t_us >= self._next_flush_record_us:
+            self._flush(time.monotonic())
+            self._next_flush_record_us = t_us + step_us
+        if self._part_started_record_us is None:
+            self._part_started_record_us = t_us
+        elif t_us - self._part_started_record_us >= self.config.rotate_interval_s * 1e6:
+            self._part_started_record_us = t_us
+            self._rotate(time.monotonic())
+
+    def _housekeeping(self, now: float) -> None:
+        if now >= self._next_free_check:
+            self._next_free_check = now + self._free_check_interval_s
+            self._check_free(now)
+            self._check_file_linked(now)
+        if (
+            self._mcap is not None
+            and not self.deterministic
+            and now - self._file_opened_at >= self.config.rotate_interval_s
+        ):
+            self._rotate(now)
+        if self._fault and now >= self._next_retry:
+            self._retry(now)
+
+    def _check_free(self, now: float) -> None:
+        try:
+            free = int(self._free_bytes(self.directory))
+        except Exception:
+            return  # unknown (e.g. the directory is gone): the write path will tell
+        low = free < self._min_free_bytes
+        if low == self._disk_low:
+            return
+        self._disk_low = low
+        floor = f"{self.config.min_free_mb:g} MB"
+        if low:
+            self._event("warning", f"log: disk below {floor}, frames not logged")
+        else:
+            self._event("info", f"log: disk above {floor}, frames logged again")
+
+    def _check_file_linked(self, now: float) -> None:
+        if self._fh is None:
+            return
+        try:
+            if os.fstat(self._fh.fileno()).st_nlink == 0:
+                raise FileNotFoundError(errno.ENOENT, "the log file was deleted")
+        except Exception as e:
+            self._enter_fault(e, now)
+
+    def _flush(self, now: float) -> None:
+        if self._mcap is None or self._fh is None or not self._dirty:
+            return
+        try:
+            _flush_writer(self._mcap, self._fh)
+            self._dirty = False
+            self._bytes_current = self._fh.tell()
+        except Exception as e:
+            self._enter_fault(e, now)
+
+    def _rotate(self, now: float) -> None:
+        self._close_file()
+        if self._fault:
+            return
+        try:
+            self._open_file()
+        except Exception as e:
+            self._enter_fault(e, now)
+
+    def _retry(self, now: float) -> None:
+        try:
+            self._open_file()
+        except Exception as e:
+            with self._lock:
+                self._counts.write_errors += 1
+            log.debug("flight log retry failed: %s", e)
+            self._next_retry = now + self._retry_interval_s
+            return
+        self._fault = False
+        self._fault_reported = False
+        self._event("info", f"log: recording again ({self._counts.files[-1].name})")
+
+    def _open_file(self) -> None:
+        """Open the next part: header, metadata record, flushed; raises on failure."""
+        self.directory.mkdir(parents=True, exist_ok=True)
+        for _ in range(100_000):
+            path = self.directory / part_name(self._session, self._counter)
+            self._counter += 1
+            try:
+                fh = self._open_stream(path)
+                break
+            except FileExistsError:
+                continue
+        else:  # pragma: no cover
+            raise FileExistsError(errno.EEXIST, "no free log file name", str(self.directory))
+        try:
+            writer = Writer(
+                fh, chunk_size=self.config.chunk_size_bytes, compression=CompressionType.ZSTD
+            )
+            writer.start(profile="", library=f"tcm-companion/{__version__} {LIBRARY_IDENTIFIER}")
+            writer.add_metadata(
+                METADATA_NAME, {**self._metadata, "log_part": str(len(self._counts.files))}
+            )
+            fh.flush()
+        except BaseException:
+            with contextlib.suppress(Exception):
+                fh.close()
+            raise
+        self._fh, self._mcap = fh, writer
+        self._channels, self._schemas, self._sequence = {}, {}, {}
+        self._dirty = False
+        self._file_opened_at = time.monotonic()
+        with self._lock:
+            self._counts.files.append(path)
+            self._bytes_current = fh.tell()
+
+    def _open_stream(self, path: Path) -> IO[bytes]:
+        """A new file for writing (never an existing one); a seam for tests."""
+        return open(path, "xb")
+
+    def _close_file(self) -> None:
+        """Finish the part (summary, footer), fsync and close it."""
+        fh, writer = self._fh, self._mcap
+        if fh is None or writer is None:
+            return
+        try:
+            writer.finish()
+            fh.flush()
+            with contextlib.suppress(OSError):
+                os.fsync(fh.fileno())
+            size = fh.tell()
+            fh.close()
+        except Exception as e:
+            self._enter_fault(e, time.monotonic())
+            return
+        self._fh = self._mcap = None
+        with self._lock:
+            self._bytes_closed += size
+            self._bytes_current = 0
+
+    def _enter_fault(self, exc: BaseException, now: float) -> None:
+        with self._lock:
+            self._counts.write_errors += 1
+            self._bytes_closed += self._bytes_current
+            self._bytes_current = 0
+        if self._fh is not None:
+            with contextlib.suppress(Exception):
+                self._fh.close()
+        self._fh = self._mcap = None
+        self._fault = True
+        self._next_retry = now + self._retry_interval_s
+        log.warning("flight log write failed: %s", exc)
+        if not self._fault_reported:
+            self._fault_reported = True
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            self._event("error", f"log: write failed ({why}), retrying")
+
+    def _event(self, severity: str, text: str) -> None:
+        if self._on_event is None:
+            return
+        try:
+            self._on_event(severity, text)
+        except Exception:
+            log.exception("flight log on_event callback failed")
+
+
+_KIND_NAMES = {_FRAME: "frame", _ANNOT: "annotations", _MAV: "MAVLink", _JSON: "JSON"}

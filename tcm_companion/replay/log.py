@@ -1,0 +1,228 @@
+"""Process replay of a flight log: the logged inputs through the companion, again.
+
+openpilot's process replay, for our daemon: the log holds every MAVLink byte received
+(with its receive time), every camera frame (lossless with ``[logging] image_format =
+"png"``) and, per processed frame, when it was processed, the clock offset the pipeline
+used and the input-health override. Replaying drives a fresh
+:class:`~tcm_companion.service.companion.Companion` — the daemon's own decisions, on a
+fresh :class:`~tcm_companion.mavlink.endpoint.CompanionEndpoint` — with the received
+bytes in the order and at the times they came (so telemetry filtering, parameter changes
+from the ground station and the pipeline rebuilds they cause happen as they did), and
+steps each logged frame at the point it was processed
+(:meth:`~tcm_companion.service.companion.Companion.replay_frame`, with the logged clock
+offset and override) — so with lossless frames the replayed results equal the logged ones
+exactly (``tests/test_log_replay.py``).
+
+Exactly means on the same install and machine. Elsewhere the last bits can move: numpy's
+bundled OpenBLAS picks its kernels by CPU (or ``OPENBLAS_CORETYPE``), numpy picks SIMD
+loops by CPU, and other numpy/OpenCV releases round differently. :func:`compare` is
+bit-exact by default; ``rel_tol`` accepts such rounding differences in the disparity
+(states and tracks must still agree exactly). ``docs/logging.md`` says which is which.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import tomllib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..config import AppConfig, config_from_dict
+from ..core.camera import CameraModel, camera_from_dict
+from ..core.pipeline import FrameResult
+from ..flightlog import topics as log_topics
+from ..mavlink.endpoint import CompanionEndpoint
+from ..service.companion import Companion
+
+
+class LogReplayError(ValueError):
+    """The log cannot be replayed (no metadata, no frames, an unknown camera)."""
+
+
+@dataclass(frozen=True)
+class ReplayedFrame:
+    logged: dict[str, Any]  # the /tcm/result document written in flight
+    result: FrameResult  # the same frame, recomputed
+
+
+def _metadata(path: Path) -> dict[str, str]:
+    from ..flightlog.reader import read_metadata
+
+    meta = read_metadata(path)
+    if not meta:
+        raise LogReplayError(f"{path}: no tcm-companion metadata record (not a flight log?)")
+    return meta
+
+
+#: Settings counted in frames before the method's time base moved to seconds, and the
+#: keys that replaced them: (table, old key) -> (new key, frames -> seconds at ``fps``).
+_FRAME_KEYS: dict[tuple[str, str], tuple[str, Any]] = {
+    ("classifier", "frame_interval"): ("interval_s", lambda n, fps: n / fps),
+    ("classifier", "extra_intervals"): ("extra_intervals_s", lambda v, fps: [n / fps for n in v]),
+    ("classifier", "hold_frames"): ("hold_s", lambda n, fps: n / fps),
+    ("classifier", "min_frame_interval"): ("min_interval_s", lambda n, fps: n / fps),
+    ("classifier", "frame_tolerance"): ("interval_tolerance_s", lambda n, fps: n / fps),
+    ("ttc", "window_frames"): ("window_s", lambda n, fps: n / fps),
+    ("ttc", "min_frames"): ("min_span_s", lambda n, fps: max(n - 1, 1) / fps),
+    ("tracking", "history_frames"): ("history_s", lambda n, fps: n / fps),
+}
+_FRAME_PARAMS = {"TCM_INTERVAL": "TCM_INTERVAL_S", "TCM_HOLD": "TCM_HOLD_S"}
+
+
+def from_frame_counts(
+    doc: dict[str, Any], params: dict[str, float]
+) -> tuple[dict[str, Any], dict[str, float]]:
+    """A configuration and parameters written before the time base moved to seconds
+    (``frame_interval``, ``TCM_HOLD``, ...), in today's keys at the log's camera rate
+    (``[camera] fps``, else 25 Hz: the paper's and the daemon's default then). Newer
+    ones come back unchanged."""
+    fps = float(doc.get("camera", {}).get("fps", 25.0) or 25.0)
+    out = copy.deepcopy(doc)
+    # the pipeline's tables, at the top (config.toml) or under [pipeline] (config check)
+    holders = [out] + ([out["pipeline"]] if isinstance(out.get("pipeline"), dict) else [])
+    for (table, old), (new, convert) in _FRAME_KEYS.items():
+        for holder in holders:
+            section = holder.get(table)
+            if isinstance(section, dict) and old in section:
+                section[new] = convert(section.pop(old), fps)
+    new_params = {_FRAME_PARAMS.get(k, k): v for k, v in params.items()}
+    for old, new in _FRAME_PARAMS.items():
+        if old in params:
+            new_params[new] = params[old] / fps
+    return out, new_params
+
+
+def log_config(path: str | Path) -> tuple[AppConfig, dict[str, float]]:
+    """The configuration and the parameter values in force when the log started (a log
+    written before the time base moved to seconds is read in today's keys)."""
+    meta = _metadata(Path(path))
+    try:
+        doc = tomllib.loads(meta.get("config", ""))
+    except tomllib.TOMLDecodeError as exc:
+        raise LogReplayError(f"{path}: metadata config is not TOML: {exc}") from None
+    params = {k: float(v) for k, v in json.loads(meta.get("params", "{}")).items()}
+    doc, params = from_frame_counts(doc, params)
+    config = config_from_dict(doc, f"{path}: metadata")
+    return config, params
+
+
+def _cameras(meta: dict[str, str], where: Path) -> tuple[list[CameraModel], list[str]]:
+    """Every camera of the log, in order (camera0, camera1, ...), and their names."""
+    models: list[CameraModel] = []
+    while f"camera{len(models)}" in meta:
+        key = f"camera{len(models)}"
+        models.append(camera_from_dict(json.loads(meta[key]), where=f"{where}: {key}"))
+    try:
+        names = [str(n) for n in json.loads(meta.get("cameras", "[]"))]
+    except ValueError:
+        names = []
+    if len(names) != len(models):
+        names = [f"camera{i}" for i in range(len(models))]
+    return models, names
+
+
+def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
+    """Yield every processed frame of camera ``camera_id`` of the log, recomputed."""
+    from ..flightlog.reader import decode_image, decode_json, read_log
+
+    p = Path(path)
+    meta = _metadata(p)
+    config, params = log_config(p)
+    models, names = _cameras(meta, p)
+    if not 0 <= camera_id < len(models):
+        raise LogReplayError(f"{p}: no camera {camera_id} in the log's metadata")
+    cv2.setNumThreads(max(0, config.daemon.opencv_threads))
+
+    endpoint = CompanionEndpoint(config.mavlink.endpoint, params)
+    companion: Companion | None = None
+    images: dict[int, np.ndarray] = {}
+    image_topic = log_topics.camera_image(camera_id)
+    topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT}
+    for rec in read_log(p, topics):
+        t_mono_us = rec.publish_time_ns // 1000
+        if companion is None:
+            companion = Companion(
+                models, config.pipeline, endpoint, t_mono_us, config.daemon, names
+            )
+        if rec.topic == log_topics.MAVLINK_IN:
+            companion.receive_data(rec.data, t_mono_us)
+        elif rec.topic == image_topic:
+            _, t_capture, image = decode_image(rec)
+            images[t_capture] = image
+        else:
+            doc = decode_json(rec)
+            if doc.get("camera_id") != camera_id:
+                continue
+            t_capture = int(doc["t_capture_us"])
+            frame_image = images.pop(t_capture, None)
+            # Frames superseded before processing were logged but never processed.
+            for old in [t for t in images if t < t_capture]:
+                del images[old]
+            if frame_image is None:
+                raise LogReplayError(
+                    f"{p}: frame at {t_capture} us was processed but is not in the log"
+                )
+            offset = doc.get("clock_offset_us")
+            result = companion.replay_frame(
+                camera_id,
+                frame_image,
+                t_capture,
+                int(doc.get("t_process_us", t_mono_us)),
+                clock_offset_us=float(offset) if offset is not None else None,
+                override=str(doc.get("override") or ""),
+            )
+            if result is None:
+                raise LogReplayError(f"{p}: the pipeline raised on the frame at {t_capture} us")
+            yield ReplayedFrame(doc, result)
+
+
+def relative_difference(a: float, b: float) -> float:
+    """``|a - b| / max(|a|, |b|)``; 0 when equal (two zeros included), inf for nan/inf."""
+    if a == b:
+        return 0.0
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return math.inf
+    return abs(a - b) / max(abs(a), abs(b))
+
+
+def compare(frame: ReplayedFrame, rel_tol: float = 0.0) -> list[str]:
+    """Differences between a logged and a replayed frame ([]: the same).
+
+    ``rel_tol = 0`` (the default, what ``replay --check`` uses): bit-exact, as process
+    replay is on the install that wrote the log. ``rel_tol > 0``: a disparity also counts
+    as the same when its :func:`relative_difference` is at most ``rel_tol`` (rounding of
+    another numpy/OpenBLAS kernel or release). The number of objects, their track ids and
+    states, and whether a disparity exists are compared exactly either way.
+    """
+    logged = frame.logged["objects"]
+    replayed = frame.result.objects
+    idx = frame.logged.get("frame_index")
+    if len(logged) != len(replayed):
+        return [f"frame {idx}: {len(logged)} objects logged, {len(replayed)} replayed"]
+    out = []
+    for a, b in zip(logged, replayed):
+        if a["track_id"] != b.track_id or a["state"] != b.state:
+            out.append(
+                f"frame {idx} track {a['track_id']}: logged {a['state']}, "
+                f"replayed track {b.track_id} {b.state}"
+            )
+            continue
+        d = b.classification.disparity
+        la = a.get("disparity")
+        if (la is None) != (not math.isfinite(d)):
+            out.append(f"frame {idx} track {a['track_id']}: disparity {la} logged, {d} replayed")
+        elif la is not None and la != d:
+            rel = relative_difference(float(la), d)
+            if rel > rel_tol:
+                out.append(
+                    f"frame {idx} track {a['track_id']}: disparity {la} logged, {d} replayed "
+                    f"(relative difference {rel:.1e})"
+                )
+    return out

@@ -1,0 +1,52 @@
+"""Camera presets for simulated flights: the paper's panorama and two side-looking lenses.
+
+The vehicle passes to the ball's left, so the pinhole faces right (yaw +90°) and slightly
+down, keeping the ball in view over the whole back-and-forth track; for the head-on and
+collision flights it faces the way the threat comes from. The 180° fisheye faces
+right-forward (yaw +45°), which covers both the side and straight ahead.
+"""
+
+from __future__ import annotations
+
+from ...core.camera import CameraModel, Equirectangular, Fisheye, Pinhole
+
+PRESETS = ("panorama", "pinhole", "fisheye")
+
+#: Pinhole yaw (degrees right of the nose) per scenario; others look right (90°). The
+#: variants with other objects (``COLLISION-DISC``, ``HEADON-BOX``, ...) look like theirs.
+_PINHOLE_YAW_DEG = {"HEADON": 0.0, "COLLISION": 35.0}
+
+
+def preset_camera(
+    name: str, resolution: tuple[int, int] | None = None, scenario: str = ""
+) -> CameraModel:
+    """``panorama`` (360×220, 360°×150°), ``pinhole`` (640×480, ~90° wide) or ``fisheye``
+    (640×640, 180°); ``resolution`` rescales the lens to another image size."""
+    cam: CameraModel
+    if name == "panorama":
+        cam = Equirectangular(360, 220)
+    elif name == "pinhole":
+        cam = Pinhole(
+            640,
+            480,
+            (0.0, -10.0, _PINHOLE_YAW_DEG.get(scenario.upper().split("-")[0], 90.0)),
+            fx=320.0,
+            fy=320.0,
+            cx=320.0,
+            cy=240.0,
+            dist=(-0.05, 0.01, 0.0, 0.0, 0.0),
+        )
+    elif name == "fisheye":
+        cam = Fisheye(
+            640,
+            640,
+            (0.0, -10.0, 45.0),
+            fx=200.0,
+            fy=200.0,
+            cx=320.0,
+            cy=320.0,
+            dist=(0.02, -0.005, 0.001, 0.0),
+        )
+    else:
+        raise ValueError(f"unknown camera preset {name!r} (known: {', '.join(PRESETS)})")
+    return cam if resolution is None else cam.scaled(*resolution)

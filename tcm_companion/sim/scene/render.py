@@ -1,0 +1,1248 @@
+"""Vectorised numpy ray caster of a :class:`~tcm_companion.sim.scene.world.World` for any camera model.
+
+Every pixel's bearing comes from the camera model (``camera.bearing_map_cam``, computed
+once), is rotated into NED by ``R_ned_from_cam = R_ned_from_body @ R_body_from_cam`` and
+intersected with the ground plane, the clutter and the balls; the camera sits at the
+vehicle position. Pixels are held in *tile-major* order (tiles of ``tile_px`` × ``tile_px``
+pixels stored contiguously), and every tile carries a bounding cone of its bearings, so an
+object is tested only against the pixels of the tiles whose cones meet the object's own
+angular bounding cone; the ground and the sky are evaluated on every valid pixel. Per-pixel
+data is planar, ``(channels, pixels)``, because numpy gathers and scatters along the last
+axis are several times faster than row gathers. All canopies (and all trunks and posts)
+are intersected in one vectorised pass, the nearest hit per pixel winning.
+
+Appearance:
+
+- ground: macro albedo (lawn, dirt, path) × periodic grass detail with stones, both
+  sampled bilinearly with ``cv2.remap``; the detail is mip-mapped and blended between
+  the two levels bracketing each pixel's ground footprint (trilinear), so distant grass
+  does not alias; distance haze;
+- light: a directional sun with Lambert shading, sky ambient (brighter from above) and
+  a little bounce light from the grass, so a ball has a dark-red shaded side; soft cast
+  shadows on the ground: the clutter's are static and baked once into the macro texture
+  (10 cm texels), the balls' are cast per frame (penumbra from the sun's size);
+- balls (and canopies, posts, trunks) are anti-aliased analytically: a pixel's coverage
+  is ``clip((ρ - γ) / p + ½, 0, 1)`` with γ the angle between its bearing and the sphere's
+  centre, ρ the sphere's angular radius and p the pixel's angular size
+  (``camera.pixel_size_map_rad``), so the rendered disc's area matches the geometric
+  one to a fraction of a pixel along its rim (box edges are hard);
+- the other targets (:class:`~.world.BoxTarget`, :class:`~.world.CylinderTarget`,
+  :class:`~.world.DiscTarget`) are ray cast exactly (:mod:`.shapes`) with 4 × 4 rays per
+  pixel (spread over the pixel by the camera model's local derivatives): coverage is the
+  fraction of rays that hit (and pass the depth test), colour the mean of their shading
+  (Lambert + ambient + bounce as above, plus the target's Blinn-Phong ``specular``), so
+  faces, edges and occluding contours are anti-aliased; their shadows on the ground are
+  cast per frame (2 × 2 shadow rays per ground pixel). Objects of every kind are drawn far
+  to near with a depth test against the clutter and each other. Objects receive no cast
+  shadows (their shaded sides are Lambert's);
+- output: linear RGB → display gamma 2 → 8 bits, plus Gaussian sensor noise (seeded),
+  BGR ``uint8``. Fisheye pixels outside the model's valid region or outside
+  ``fisheye_fov_deg`` are black.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from ...core.camera import CameraModel, Fisheye
+from ...core.frames import FloatArray
+from .shapes import ray_target_ned
+from .world import (
+    DETAIL_LEVELS,
+    Ball,
+    Box,
+    BoxTarget,
+    Cylinder,
+    Ground,
+    GroundTextures,
+    SolidTarget,
+    Sphere,
+    Sun,
+    Target,
+    Tree,
+    World,
+    ground_textures,
+    sky_textures,
+)
+
+_REMAP_COLS = 1024  # cv2.remap wants both map dimensions below SHRT_MAX
+_T_FAR_M = 1000.0  # ground beyond this range is drawn as horizon haze
+_SUN_PENUMBRA = 2.0 * math.tan(math.radians(0.27))  # penumbra width per metre of shadow ray
+_NOISE_BANK = 1 << 20
+_BALL_SPECULAR = 0.08
+_SPECULAR_EXPONENT = 30
+_SUB = 4  # rays per pixel side for the non-spherical targets
+_SUB_OFF = (np.arange(_SUB) + 0.5) / _SUB - 0.5
+_SUB_U = np.tile(_SUB_OFF, _SUB)
+_SUB_V = np.repeat(_SUB_OFF, _SUB)
+
+
+def _remap_flat(src: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
+    """Bilinear samples of ``src`` at (x, y) (OpenCV pixel-centre coordinates), shape (N, C)."""
+    n = x.shape[0]
+    channels = src.shape[2] if src.ndim == 3 else 1
+    if n == 0:
+        return np.zeros((0, channels), src.dtype)
+    rows = -(-n // _REMAP_COLS)
+    pad = rows * _REMAP_COLS - n
+    if pad:
+        x = np.concatenate([x, np.zeros(pad, np.float32)])
+        y = np.concatenate([y, np.zeros(pad, np.float32)])
+    out = cv2.remap(
+        src,
+        x.reshape(rows, _REMAP_COLS),
+        y.reshape(rows, _REMAP_COLS),
+        cv2.INTER_LINEAR,
+        borderMode=border,
+    )
+    return out.reshape(rows * _REMAP_COLS, channels)[:n]
+
+
+def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
+    t = np.clip((x - e0) * (1.0 / (e1 - e0)), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+# Per-pixel data is planar, (channels, pixels): numpy gathers and scatters along the last
+# axis of such arrays are several times faster than row gathers of (pixels, channels).
+def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    return np.take(a, idx, axis=-1)
+
+
+def _take_all(idx: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_take` of several arrays at the same indices."""
+    return tuple(_take(a, idx) for a in arrays)
+
+
+def _put(dst: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
+    for c in range(dst.shape[0]):
+        dst[c, idx] = values[c]
+
+
+class _Layout:
+    """Pixels of one camera in tile-major order, with per-tile bounding cones."""
+
+    def __init__(self, camera: CameraModel, tile_px: int, fisheye_fov_deg: float) -> None:
+        h, w = camera.height, camera.width
+        ts = tile_px
+        ty, tx = -(-h // ts), -(-w // ts)
+        hp, wp = ty * ts, tx * ts
+        self.width, self.height = w, h
+        self.tile_px, self.tiles_y, self.tiles_x = ts, ty, tx
+        self.t2 = ts * ts
+
+        bear = np.asarray(camera.bearing_map_cam, dtype=np.float64)
+        valid = np.isfinite(bear[..., 0])
+        if isinstance(camera, Fisheye):
+            with np.errstate(invalid="ignore"):
+                valid &= bear[..., 0] >= math.cos(math.radians(fisheye_fov_deg / 2.0)) - 1e-12
+        pix = np.asarray(camera.pixel_size_map_rad, dtype=np.float64)
+        fallback = float(np.median(pix[valid])) if valid.any() else 1e-2
+        bear_p = np.zeros((hp, wp, 3))
+        bear_p[..., 0] = 1.0
+        bear_p[:h, :w][valid] = bear[valid]
+        valid_p = np.zeros((hp, wp), bool)
+        valid_p[:h, :w] = valid
+        pix_p = np.full((hp, wp), fallback)
+        pix_p[:h, :w] = np.where(valid & (pix > 0), pix, fallback)
+
+        bear_t = self._to_tiles(bear_p)  # (N, 3)
+        self.bearing_cam = np.ascontiguousarray(bear_t.T, dtype=np.float32)  # (3, N)
+        self.valid = self._to_tiles(valid_p)
+        self.pix_rad = self._to_tiles(pix_p).astype(np.float32)
+        self.n = self.valid.shape[0]
+
+        nt = ty * tx
+        bt = bear_t.reshape(nt, self.t2, 3)
+        vt = self.valid.reshape(nt, self.t2)
+        pt = self.pix_rad.reshape(nt, self.t2)
+        centre = np.where(vt[..., None], bt, 0.0).sum(axis=1)
+        norm = np.linalg.norm(centre, axis=1)
+        keep = (norm > 1e-9) & vt.any(axis=1)
+        centre = centre[keep] / norm[keep, None]
+        cosang = np.einsum("tkc,tc->tk", bt[keep], centre)
+        ang = np.arccos(np.clip(cosang, -1.0, 1.0)) + 1.5 * pt[keep]
+        radius = np.where(vt[keep], ang, 0.0).max(axis=1)
+        self.tile_ids = np.nonzero(keep)[0]
+        self.tile_centre_cam = centre  # (T, 3)
+        self.tile_cos = np.cos(radius)
+        self.tile_sin = np.sin(radius)
+        self._ar = np.arange(self.t2)
+        self._camera = camera
+        self._pixel_axes: tuple[np.ndarray, np.ndarray] | None = None
+        self._pixel_rc: np.ndarray | None = None
+
+    def pixel_axes_cam(self) -> tuple[np.ndarray, np.ndarray]:
+        """(3, N) float32 bearing change across each pixel along u and along v (camera
+        FRD): a ray at ``(u + su, v + sv)`` is about ``b + su·du + sv·dv`` (su, sv in
+        [-½, ½]). Built on first use (only worlds with non-spherical targets need it)."""
+        if self._pixel_axes is None:
+            cam = self._camera
+            u = np.arange(cam.width, dtype=np.float64) + 0.5
+            v = np.arange(cam.height, dtype=np.float64) + 0.5
+            uu, vv = np.meshgrid(u, v)
+
+            def diff(du: float, dv: float) -> np.ndarray:
+                a = cam.bearing_cam_from_pixel(np.stack([uu - du, vv - dv], axis=-1))
+                b = cam.bearing_cam_from_pixel(np.stack([uu + du, vv + dv], axis=-1))
+                d = np.where(np.isfinite(a) & np.isfinite(b), b - a, 0.0)
+                hp, wp = self.tiles_y * self.tile_px, self.tiles_x * self.tile_px
+                out = np.zeros((hp, wp, 3))
+                out[: cam.height, : cam.width] = d
+                return np.ascontiguousarray(self._to_tiles(out).T, dtype=np.float32)
+
+            self._pixel_axes = (diff(0.5, 0.0), diff(0.0, 0.5))
+        return self._pixel_axes
+
+    def pixel_rc(self) -> np.ndarray:
+        """Row and column (2, N) int32 of each tile-major pixel in the padded image."""
+        if self._pixel_rc is None:
+            hp, wp = self.tiles_y * self.tile_px, self.tiles_x * self.tile_px
+            rr, cc = np.mgrid[0:hp, 0:wp].astype(np.int32)
+            self._pixel_rc = np.stack([self._to_tiles(rr), self._to_tiles(cc)])
+        return self._pixel_rc
+
+    def _to_tiles(self, a: np.ndarray) -> np.ndarray:
+        ts = self.tile_px
+        rest = a.shape[2:]
+        t = a.reshape(self.tiles_y, ts, self.tiles_x, ts, *rest).swapaxes(1, 2)
+        return np.ascontiguousarray(t).reshape(self.tiles_y * self.tiles_x * ts * ts, *rest)
+
+    def to_image(self, planar: np.ndarray) -> np.ndarray:
+        """(C, N) tile-major planar data → (H, W, C) image (or (H, W) for C = 1 / 1-D)."""
+        ts = self.tile_px
+        data = planar if planar.ndim == 2 else planar[None, :]
+        c = data.shape[0]
+        t = data.reshape(c, self.tiles_y, self.tiles_x, ts, ts).transpose(1, 3, 2, 4, 0)
+        img = t.reshape(self.tiles_y * ts, self.tiles_x * ts, c)[: self.height, : self.width]
+        img = np.ascontiguousarray(img)
+        return img if planar.ndim == 2 else img[..., 0]
+
+    def pixels_of_tiles(self, kept_tiles: np.ndarray) -> np.ndarray:
+        tiles = self.tile_ids[kept_tiles]
+        return (tiles[:, None] * self.t2 + self._ar[None, :]).ravel()
+
+
+@dataclass
+class _Frame:
+    """Per-frame state: pose, rotated bearings, the colour and depth buffers."""
+
+    origin: FloatArray  # camera position, NED m
+    B: np.ndarray  # (3, N) float32 bearings in NED
+    tile_centre: FloatArray  # (T, 3) tile cone axes in NED
+    colour: np.ndarray  # (3, N) float32 linear RGB
+    depth: np.ndarray  # (N,) float32 range along the ray, m
+    ground: np.ndarray  # (N,) bool: ray meets the ground within _T_FAR_M
+    R_ned_from_cam: FloatArray | None = None
+    ground_t: np.ndarray | None = None  # (N,) float32 ground range where the ground was drawn
+
+
+# --------------------------------------------------------------------------------------
+# Shadow coverage at ground points (n, e): fraction of the sun hidden by one caster.
+# ``foot`` is the ground footprint (m) used as the minimum edge width (anti-aliasing).
+# --------------------------------------------------------------------------------------
+def _sphere_shadow(
+    n: np.ndarray, e: np.ndarray, foot: np.ndarray, centre: FloatArray, radius: float, L: FloatArray
+) -> np.ndarray:
+    vn, ve, vd = centre[0] - n, centre[1] - e, float(centre[2])
+    s = vn * L[0] + ve * L[1] + vd * L[2]  # along the ray towards the sun
+    perp = np.sqrt(np.maximum(vn * vn + ve * ve + vd * vd - s * s, 0.0))
+    width = np.maximum(np.maximum(foot, s * _SUN_PENUMBRA), 1e-6)
+    cov = np.clip((radius - perp) / width + 0.5, 0.0, 1.0)
+    return np.where(s > 0, cov, 0.0)
+
+
+def _cylinder_shadow(
+    n: np.ndarray, e: np.ndarray, foot: np.ndarray, c: Cylinder, L: FloatArray
+) -> np.ndarray:
+    lh2 = max(float(L[0] ** 2 + L[1] ** 2), 1e-12)
+    dn, de = c.base_ne_m[0] - n, c.base_ne_m[1] - e
+    s = (dn * L[0] + de * L[1]) / lh2
+    perp = np.hypot(dn - s * L[0], de - s * L[1])
+    rise = -s * L[2]  # height of the shadow ray where it passes the axis
+    width = np.maximum(np.maximum(foot, s * _SUN_PENUMBRA), 1e-6)
+    cov = np.clip((c.radius_m - perp) / width + 0.5, 0.0, 1.0)
+    return np.where((s > 0) & (rise <= c.height_m), cov, 0.0)
+
+
+def _box_shadow(n: np.ndarray, e: np.ndarray, box: Box, L: FloatArray) -> np.ndarray:
+    lo, hi = np.asarray(box.min_ned_m)[:, None], np.asarray(box.max_ned_m)[:, None]
+    o = np.stack([n, e, np.full_like(n, -1e-3)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = (1.0 / L)[:, None]
+        t1 = (lo - o) * inv
+        t2 = (hi - o) * inv
+    tnear = np.fmin(t1, t2).max(axis=0)
+    tfar = np.fmax(t1, t2).min(axis=0)
+    return ((tfar >= np.maximum(tnear, 0.0)) & (tfar > 0)).astype(np.float64)
+
+
+def _footprint(centre: FloatArray, radius: float, L: FloatArray) -> tuple[FloatArray, float]:
+    """Ground circle holding the shadow of a bounding sphere (projected along the sun)."""
+    g = np.asarray(centre, np.float64) - (centre[2] / L[2]) * L
+    return g, radius / max(-float(L[2]), 0.05) + 0.05
+
+
+@lru_cache(maxsize=4)
+def _lit_macro(
+    ground: Ground,
+    sun: Sun,
+    trees: tuple[Tree, ...],
+    posts: tuple[Cylinder, ...],
+    buildings: tuple[Box, ...],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Macro texture levels with the static clutter's shadows baked into channel 3.
+
+    The clutter does not move, so neither do its shadows: channel 3 holds the sunlit
+    fraction (× 255) of each texel, and only the balls' shadows are cast per frame.
+    """
+    tex = ground_textures(ground)
+    m0 = tex.macro_levels[0]
+    h, w = m0.shape[:2]
+    texel = tex.macro_texels_m[0]
+    on, oe = tex.macro_origin_ne_m
+    L = sun.direction_ned
+    lit = np.ones((h, w), np.float64)
+
+    def window(
+        centre: FloatArray, radius: float
+    ) -> tuple[slice, slice, np.ndarray, np.ndarray] | None:
+        g, rg = _footprint(centre, radius, L)
+        x0, x1 = int((g[1] - rg - oe) / texel), int((g[1] + rg - oe) / texel) + 2
+        y0, y1 = int((on - g[0] - rg) / texel), int((on - g[0] + rg) / texel) + 2
+        x0, x1, y0, y1 = max(x0, 0), min(x1, w), max(y0, 0), min(y1, h)
+        if x0 >= x1 or y0 >= y1:
+            return None
+        ee = oe + (np.arange(x0, x1) + 0.5) * texel
+        nn = on - (np.arange(y0, y1) + 0.5) * texel
+        n_grid, e_grid = np.meshgrid(nn, ee, indexing="ij")
+        return slice(y0, y1), slice(x0, x1), n_grid, e_grid
+
+    foot = texel
+    for tree in trees:
+        casters: list[tuple[str, object]] = [("cyl", tree.trunk)] + [
+            ("sph", s) for s in tree.canopy
+        ]
+        for kind, obj in casters:
+            if kind == "cyl":
+                assert isinstance(obj, Cylinder)
+                centre = np.array([obj.base_ne_m[0], obj.base_ne_m[1], -obj.height_m / 2.0])
+                win = window(centre, math.hypot(obj.radius_m, obj.height_m / 2.0))
+                if win is not None:
+                    ys, xs, nn, ee = win
+                    lit[ys, xs] *= 1.0 - _cylinder_shadow(nn, ee, np.full_like(nn, foot), obj, L)
+            else:
+                assert isinstance(obj, Sphere)
+                c = np.asarray(obj.centre_ned_m, np.float64)
+                win = window(c, obj.radius_m)
+                if win is not None:
+                    ys, xs, nn, ee = win
+                    lit[ys, xs] *= 1.0 - _sphere_shadow(
+                        nn, ee, np.full_like(nn, foot), c, obj.radius_m, L
+                    )
+    for post in posts:
+        centre = np.array([post.base_ne_m[0], post.base_ne_m[1], -post.height_m / 2.0])
+        win = window(centre, math.hypot(post.radius_m, post.height_m / 2.0))
+        if win is not None:
+            ys, xs, nn, ee = win
+            lit[ys, xs] *= 1.0 - _cylinder_shadow(nn, ee, np.full_like(nn, foot), post, L)
+    for box in buildings:
+        lo, hi = np.asarray(box.min_ned_m), np.asarray(box.max_ned_m)
+        win = window((lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0))
+        if win is not None:
+            ys, xs, nn, ee = win
+            lit[ys, xs] *= 1.0 - _box_shadow(nn.ravel(), ee.ravel(), box, L).reshape(nn.shape)
+    level0 = np.dstack([m0, np.clip(lit * 255.0 + 0.5, 0, 255).astype(np.uint8)])
+    blurred = cv2.GaussianBlur(level0, (0, 0), 1.6)
+    f = round(tex.macro_texels_m[1] / texel)
+    level1 = cv2.resize(blurred, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    return level0, level1
+
+
+class Renderer:
+    """Render one :class:`World` through one camera model.
+
+    ``render(t_s, pos_ned_m, R_ned_from_body)`` gives a BGR ``uint8`` frame at scenario
+    time ``t_s`` (the balls move with time), camera at ``pos_ned_m``. ``seed`` seeds the
+    bank the sensor noise is drawn from; each call's ``rng`` picks from it.
+    """
+
+    def __init__(
+        self,
+        world: World,
+        camera: CameraModel,
+        fisheye_fov_deg: float = 180.0,
+        tile_px: int = 8,
+        seed: int = 0,
+    ) -> None:
+        self.world = world
+        self.camera = camera
+        self.layout = _Layout(camera, tile_px, fisheye_fov_deg)
+        self.tex: GroundTextures = ground_textures(world.ground)
+        self.macro = _lit_macro(world.ground, world.sun, world.trees, world.posts, world.buildings)
+        self.sky_tex = sky_textures(world.sky)
+        self._L = world.sun.direction_ned
+        self._sin_sun = -float(self._L[2])
+
+        spheres = [s for t in world.trees for s in t.canopy]
+        self._sph_centre = np.array([s.centre_ned_m for s in spheres], np.float64).reshape(-1, 3)
+        self._sph_radius = np.array([s.radius_m for s in spheres], np.float64)
+        self._sph_albedo = (
+            np.array([s.albedo_rgb for s in spheres], np.float32).reshape(-1, 3).T.copy()
+        )
+        self._sph_leafy = np.array([s.leafy for s in spheres], bool)
+        cyls = [t.trunk for t in world.trees] + list(world.posts)
+        self._cyls = cyls
+        self._cyl_base = np.array([c.base_ne_m for c in cyls], np.float64).reshape(-1, 2).T.copy()
+        self._cyl_radius = np.array([c.radius_m for c in cyls], np.float64)
+        self._cyl_height = np.array([c.height_m for c in cyls], np.float64)
+        self._cyl_albedo = (
+            np.array([c.albedo_rgb for c in cyls], np.float32).reshape(-1, 3).T.copy()
+        )
+        self._cyl_bound_centre = np.stack(
+            [self._cyl_base[0], self._cyl_base[1], -self._cyl_height / 2.0], axis=1
+        ).reshape(-1, 3)
+        self._cyl_bound_radius = np.hypot(self._cyl_radius, self._cyl_height / 2.0)
+        self._scratch = np.full(self.layout.n, np.inf)
+
+        bank_rng = np.random.default_rng(np.random.SeedSequence([2718281, seed]))
+        self._noise_bank = bank_rng.standard_normal(
+            max(_NOISE_BANK, 3 * self.layout.n) + 3 * self.layout.n, dtype=np.float32
+        )
+
+    # ---------------------------------------------------------------------------------
+    # Public API
+    # ---------------------------------------------------------------------------------
+    def render(
+        self,
+        t_s: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+        noise_dn: float = 2.5,
+        rng: np.random.Generator | None = None,
+    ) -> np.ndarray:
+        """BGR ``uint8`` image (H, W, 3) with Gaussian sensor noise of σ = ``noise_dn`` DN.
+
+        The noise of one call is the sum of two slices of a seeded Gaussian bank at
+        offsets drawn from ``rng``, scaled to σ: i.i.d. within the frame, and as
+        reproducible as ``rng``.
+        """
+        lin = self._render_flat(t_s, pos_ned_m, R_ned_from_body)
+        return self._to_bgr(lin, noise_dn, rng)
+
+    def render_with_coverage(
+        self,
+        t_s: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+        noise_dn: float = 2.5,
+        rng: np.random.Generator | None = None,
+    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """:meth:`render`'s image (the same bytes for the same ``rng``) and, per
+        ``object_id``, the object's *visible* coverage (H, W) float32 in [0, 1]: the
+        weight its colour has in each pixel after anti-aliasing and occlusion by the
+        clutter and by nearer objects (absent from the dict: not in view)."""
+        cov: dict[int, np.ndarray] = {}
+        lin = self._render_flat(t_s, pos_ned_m, R_ned_from_body, coverage=cov)
+        return self._to_bgr(lin, noise_dn, rng), cov
+
+    def visible_coverage(
+        self, t_s: float, pos_ned_m: FloatArray, R_ned_from_body: FloatArray
+    ) -> dict[int, np.ndarray]:
+        """Per ``object_id`` the visible coverage of :meth:`render_with_coverage`, without
+        drawing the ground and the sky (about the cost of the objects and the clutter)."""
+        cov: dict[int, np.ndarray] = {}
+        self._render_flat(t_s, pos_ned_m, R_ned_from_body, coverage=cov, background=False)
+        return cov
+
+    def _to_bgr(
+        self, lin: np.ndarray, noise_dn: float, rng: np.random.Generator | None
+    ) -> np.ndarray:
+        """Linear planar colour → display gamma 2 → 8 bits with sensor noise, BGR image."""
+        out = lin.reshape(-1)
+        np.clip(out, 0.0, 1.0, out=out)
+        np.sqrt(out, out=out)
+        out *= 255.0
+        out += 0.5
+        if noise_dn > 0:
+            rng = rng if rng is not None else np.random.default_rng()
+            n = out.shape[0]
+            o1, o2 = (int(v) for v in rng.integers(0, self._noise_bank.shape[0] - n, 2))
+            noise = self._noise_bank[o1 : o1 + n] + self._noise_bank[o2 : o2 + n]
+            noise *= noise_dn / math.sqrt(2.0)
+            out += noise
+        np.clip(out, 0.0, 255.0, out=out)
+        img = lin.astype(np.uint8)
+        img[:, ~self.layout.valid] = 0
+        return self.layout.to_image(img[::-1])
+
+    def render_linear(
+        self, t_s: float, pos_ned_m: FloatArray, R_ned_from_body: FloatArray
+    ) -> np.ndarray:
+        """Noise-free linear RGB float32 (H, W, 3); black outside the camera's view."""
+        lin = self._render_flat(t_s, pos_ned_m, R_ned_from_body)
+        lin[:, ~self.layout.valid] = 0.0
+        return self.layout.to_image(lin)
+
+    def sphere_coverage(
+        self,
+        centre_ned_m: FloatArray,
+        radius_m: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+    ) -> np.ndarray:
+        """Anti-aliased coverage (H, W) in [0, 1] of a sphere, ignoring occlusion.
+
+        The renderer's own formula: a ground-truth segmentation for tests and evaluation
+        (Σ coverage × pixel solid angle is the disc's solid angle).
+        """
+        origin = np.asarray(pos_ned_m, dtype=np.float64)
+        R = np.asarray(R_ned_from_body, dtype=np.float64) @ self.camera.R_body_from_cam
+        B = R @ self.layout.bearing_cam.astype(np.float64)
+        centre = np.asarray(centre_ned_m, np.float64).reshape(3, 1)
+        alpha, _, _ = _sphere_terms(B, centre, np.array([radius_m]), origin, self.layout.pix_rad)
+        alpha = np.where(self.layout.valid, alpha, 0.0).astype(np.float32)
+        return self.layout.to_image(alpha)
+
+    def object_coverage(
+        self,
+        obj: Target,
+        t_s: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+    ) -> np.ndarray:
+        """Anti-aliased coverage (H, W) in [0, 1] of any target at time ``t_s``, ignoring
+        occlusion (the silhouette as the renderer draws it; :meth:`sphere_coverage` for a
+        ball)."""
+        centre = np.asarray(obj.centre_ned_m(t_s), np.float64)
+        if isinstance(obj, Ball):
+            return self.sphere_coverage(centre, obj.radius_m, pos_ned_m, R_ned_from_body)
+        lay = self.layout
+        origin = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
+        R = np.asarray(R_ned_from_body, dtype=np.float64) @ self.camera.R_body_from_cam
+        fr = _Frame(
+            origin=origin,
+            B=R.astype(np.float32) @ lay.bearing_cam,
+            tile_centre=lay.tile_centre_cam @ R.T,
+            colour=np.zeros((3, lay.n), np.float32),
+            depth=np.full(lay.n, np.inf, np.float32),
+            ground=np.zeros(lay.n, bool),
+            R_ned_from_cam=R,
+        )
+        alpha = np.zeros(lay.n, np.float32)
+        drawn = self._draw_target(fr, centre, obj.R_ned_from_obj(t_s), obj)
+        if drawn is not None:
+            alpha[drawn[0]] = drawn[1]
+        alpha[~lay.valid] = 0.0
+        return lay.to_image(alpha)
+
+    # ---------------------------------------------------------------------------------
+    # Frame
+    # ---------------------------------------------------------------------------------
+    def _render_flat(
+        self,
+        t_s: float,
+        pos_ned_m: FloatArray,
+        R_ned_from_body: FloatArray,
+        coverage: dict[int, np.ndarray] | None = None,
+        background: bool = True,
+    ) -> np.ndarray:
+        """Planar linear colour (3, N). ``coverage``: filled with each object's visible
+        coverage image; ``background=False`` skips the ground and the sky."""
+        lay = self.layout
+        origin = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
+        R = np.asarray(R_ned_from_body, dtype=np.float64) @ self.camera.R_body_from_cam
+        B = R.astype(np.float32) @ lay.bearing_cam
+        height = -float(origin[2])
+        if height > 1e-3:
+            ground = lay.valid & (B[2] > height / _T_FAR_M)
+        else:
+            ground = np.zeros(lay.n, bool)
+        fr = _Frame(
+            origin=origin,
+            B=B,
+            tile_centre=lay.tile_centre_cam @ R.T,
+            colour=np.zeros((3, lay.n), np.float32),
+            depth=np.full(lay.n, np.inf, np.float32),
+            ground=ground,
+            R_ned_from_cam=R,
+        )
+        balls = [(b.centre_ned_m(t_s), b) for b in self.world.balls]
+        targets = [(tg.centre_ned_m(t_s), tg) for tg in self.world.targets]
+        if background:
+            if height > 1e-3:
+                sunlit = self._ball_shadows(fr, balls)
+                if targets:
+                    sunlit *= self._target_shadows(fr, targets, t_s)
+                self._draw_ground(fr, sunlit)
+            self._draw_sky(fr, np.nonzero(lay.valid & ~ground)[0])
+        for box in self.world.buildings:
+            self._draw_box(fr, box)
+        self._draw_cylinders(fr)
+        self._draw_canopies(fr)
+        objects: list[tuple[FloatArray, Target]] = [*balls, *targets]
+        objects.sort(key=lambda cb: -float(np.linalg.norm(cb[0] - origin)))
+        cov = np.zeros((len(objects), lay.n), np.float32) if coverage is not None else None
+        for k, (centre, obj) in enumerate(objects):
+            if isinstance(obj, Ball):
+                drawn = self._draw_ball(fr, centre, obj)
+            else:
+                drawn = self._draw_target(fr, centre, obj.R_ned_from_obj(t_s), obj)
+            if cov is not None and drawn is not None:
+                ii, alpha = drawn
+                a = alpha.astype(np.float32)
+                cov[:k, ii] *= 1.0 - a  # what this object covers, the farther ones lose
+                cov[k, ii] = a
+        if coverage is not None and cov is not None:
+            for k, (_, obj) in enumerate(objects):
+                if np.any(cov[k] > 0):
+                    cov[k, ~lay.valid] = 0.0
+                    coverage[obj.object_id] = lay.to_image(cov[k])
+        return fr.colour
+
+    # ---------------------------------------------------------------------------------
+    # Culling
+    # ---------------------------------------------------------------------------------
+    def _tiles_hit(self, fr: _Frame, centres: FloatArray, radii: FloatArray) -> np.ndarray:
+        """(T, K) bool: tile cone meets the bounding cone of sphere k (NED centre, radius)."""
+        v = np.asarray(centres, np.float64).reshape(-1, 3) - fr.origin
+        dist = np.linalg.norm(v, axis=1)
+        inside = dist <= radii * 1.0001
+        safe = np.where(inside, 1.0, dist)
+        u = v / safe[:, None]
+        sin_rho = np.clip(radii / safe, 0.0, 1.0)
+        cos_rho = np.sqrt(1.0 - sin_rho * sin_rho)
+        # cos(ρ + r) without a cosine on the (T, K) grid; ρ ≤ π/2 and tile radii are
+        # small, so ρ + r < π where the cosine is monotonic.
+        lay = self.layout
+        thr = lay.tile_cos[:, None] * cos_rho[None, :] - lay.tile_sin[:, None] * sin_rho[None, :]
+        hit = (fr.tile_centre @ u.T) >= thr
+        hit[:, inside] = True
+        return hit
+
+    def _pairs(self, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pixel, object) index pairs of every pixel in every tile an object may cover."""
+        t, k = np.nonzero(hit)
+        t2 = self.layout.t2
+        pix = (self.layout.tile_ids[t][:, None] * t2 + np.arange(t2)[None, :]).ravel()
+        return pix, np.repeat(k, t2)
+
+    def _resolve(self, pix: np.ndarray, key: np.ndarray) -> np.ndarray:
+        """Indices of the pairs with the smallest ``key`` for their pixel (one per pixel)."""
+        scratch = self._scratch
+        np.minimum.at(scratch, pix, key)
+        win = np.nonzero(key <= scratch[pix])[0]
+        scratch[pix] = np.inf
+        _, first = np.unique(pix[win], return_index=True)
+        return win[first]
+
+    # ---------------------------------------------------------------------------------
+    # Ground and sky
+    # ---------------------------------------------------------------------------------
+    def _ground_hits(
+        self, fr: _Frame, idx: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Range, north, east and footprint (all float32, metres) of ground pixels ``idx``."""
+        b = _take(fr.B, idx)
+        bd = b[2]
+        t = np.float32(-fr.origin[2]) / bd
+        n = np.float32(fr.origin[0]) + t * b[0]
+        e = np.float32(fr.origin[1]) + t * b[1]
+        foot = t * _take(self.layout.pix_rad, idx) / np.sqrt(bd)
+        return t, n, e, foot
+
+    def _sample_detail(self, n: np.ndarray, e: np.ndarray, foot_m: np.ndarray) -> np.ndarray:
+        """Trilinear sample of the detail mip chain: (4, M) float32 (mult × 128, stone × 255)."""
+        tex = self.tex
+        inv_texel = np.float32(1.0 / tex.detail_texel_m)
+        period = np.float32(tex.detail_px)
+        x0 = e * inv_texel
+        y0 = n * -inv_texel
+        x0 -= np.floor(x0 * (1.0 / period)) * period
+        y0 -= np.floor(y0 * (1.0 / period)) * period
+        lam = np.log2(np.maximum(foot_m * inv_texel, 1.0))
+        np.clip(lam, 0.0, DETAIL_LEVELS - 1.001, out=lam)
+        k = lam.astype(np.int32)
+        w = lam - k
+        scale = np.exp2(-k.astype(np.float32))
+        offs = tex.detail_offsets_px - 0.5
+        ox, oy = offs[:, 0], offs[:, 1]
+        xa = x0 * scale + _take(ox, k)
+        ya = y0 * scale + _take(oy, k)
+        scale *= 0.5
+        xb = x0 * scale + _take(ox, k + 1)
+        yb = y0 * scale + _take(oy, k + 1)
+        a = _remap_flat(tex.detail_atlas, xa, ya, cv2.BORDER_REPLICATE).T.astype(np.float32)
+        b = _remap_flat(tex.detail_atlas, xb, yb, cv2.BORDER_REPLICATE).T.astype(np.float32)
+        b -= a
+        b *= w
+        a += b
+        return a
+
+    def _ground_albedo(
+        self, n: np.ndarray, e: np.ndarray, foot_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Linear albedo (3, M) of ground points and their static sunlit fraction (M,)."""
+        tex = self.tex
+        on, oe = tex.macro_origin_ne_m
+        t0, t1 = tex.macro_texels_m
+        mx0 = (e - np.float32(oe)) * np.float32(1.0 / t0) - 0.5
+        my0 = (np.float32(on) - n) * np.float32(1.0 / t0) - 0.5
+        macro = _remap_flat(self.macro[0], mx0, my0, cv2.BORDER_REPLICATE).T.astype(np.float32)
+        far = np.nonzero(foot_m > t0)[0]
+        if far.size:
+            r = np.float32(t0 / t1)
+            m1 = _remap_flat(
+                self.macro[1],
+                (_take(mx0, far) + 0.5) * r - 0.5,
+                (_take(my0, far) + 0.5) * r - 0.5,
+                cv2.BORDER_REPLICATE,
+            ).T.astype(np.float32)
+            wm = np.clip((_take(foot_m, far) - t0) * (1.0 / (3.0 * t0)), 0.0, 1.0)
+            m0 = _take(macro, far)
+            _put(macro, far, m0 + (m1 - m0) * wm)
+        lit = macro[3] * np.float32(1.0 / 255.0)
+        albedo = macro[:3] * np.float32(tex.macro_scale)
+        det = self._sample_detail(n, e, foot_m)
+        stone = det[3] * np.float32(1.0 / 255.0)
+        stone_rgb = np.asarray(self.world.ground.stone_rgb, np.float32)[:, None]
+        albedo += (stone_rgb - albedo) * stone
+        albedo *= det[:3]
+        albedo *= np.float32(1.0 / 128.0)
+        return albedo, lit
+
+    def _ball_shadows(self, fr: _Frame, balls: list[tuple[FloatArray, Ball]]) -> np.ndarray:
+        """(N,) sunlit fraction left by the balls' shadows (1 where no ball shades)."""
+        sunlit = np.ones(self.layout.n, np.float32)
+        if not balls:
+            return sunlit
+        feet = [_footprint(c, b.radius_m, self._L) for c, b in balls]
+        hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
+        for k, (centre, ball) in enumerate(balls):
+            tiles = np.nonzero(hit[:, k])[0]
+            if tiles.size == 0:
+                continue
+            idx = self.layout.pixels_of_tiles(tiles)
+            idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
+            if idx.size == 0:
+                continue
+            _, n, e, foot = self._ground_hits(fr, idx)
+            cover = _sphere_shadow(
+                n.astype(np.float64), e.astype(np.float64), foot, centre, ball.radius_m, self._L
+            )
+            sunlit[idx] *= (1.0 - cover).astype(np.float32)
+        return sunlit
+
+    def _draw_ground(self, fr: _Frame, sunlit: np.ndarray) -> None:
+        gi = np.nonzero(fr.ground)[0]
+        if gi.size == 0:
+            return
+        t, n, e, foot = self._ground_hits(fr, gi)
+        col, lit = self._ground_albedo(n, e, foot)
+        sun = self.world.sun
+        lit *= _take(sunlit, gi)
+        col *= np.float32(sun.ambient) + np.float32(sun.irradiance * self._sin_sun) * lit
+        haze = 1.0 - np.exp(t * np.float32(-1.0 / self.world.sky.haze_distance_m))
+        haze_rgb = np.asarray(self.world.sky.horizon_rgb, np.float32)[:, None] * np.float32(0.9)
+        col += (haze_rgb - col) * haze
+        _put(fr.colour, gi, col)
+        fr.depth[gi] = t
+        fr.ground_t = np.full(self.layout.n, np.nan, np.float32)
+        fr.ground_t[gi] = t
+
+    def _draw_sky(self, fr: _Frame, si: np.ndarray) -> None:
+        if si.size == 0:
+            return
+        sky, sun = self.world.sky, self.world.sun
+        b = _take(fr.B, si)
+        up = -b[2]
+        s = 1.0 - np.clip(up, 0.0, 1.0)
+        g = 1.0 - s * s * s
+        zen = np.asarray(sky.zenith_rgb, np.float32)[:, None]
+        hor = np.asarray(sky.horizon_rgb, np.float32)[:, None]
+        col = hor + (zen - hor) * g
+
+        # Clouds on a flat layer.
+        cl = np.nonzero(up > 0.03)[0]
+        if cl.size:
+            bu = _take(b, cl)
+            upc = _take(up, cl)
+            k = np.float32(sky.cloud_height_m / self.sky_tex.cloud_texel_m) / upc
+            size = np.float32(self.sky_tex.cloud.shape[0])
+            x = bu[1] * k
+            y = bu[0] * -k
+            x -= np.floor(x * (1.0 / size)) * size
+            y -= np.floor(y * (1.0 / size)) * size
+            c = _remap_flat(self.sky_tex.cloud, x - 0.5, y - 0.5, cv2.BORDER_WRAP).T
+            dens = c[0] * _smoothstep(0.03, 0.2, upc)
+            cloud_rgb = np.asarray(sky.cloud_rgb, np.float32)[:, None] * c[1]
+            cur = _take(col, cl)
+            _put(col, cl, cur + (cloud_rgb - cur) * dens)
+
+        # Sun disc and glow (the glow fades to zero 26° from the sun).
+        cosg = self._L.astype(np.float32) @ b
+        near = np.nonzero(cosg > math.cos(0.45))[0]
+        if near.size:
+            gamma = np.arccos(np.clip(_take(cosg, near), -1.0, 1.0))
+            wide = np.maximum(1.0 - gamma * (1.0 / 0.45), 0.0)
+            glow = 0.35 * np.exp(gamma * (-1.0 / 0.06)) + 0.15 * wide * wide
+            rho = math.radians(sun.angular_radius_deg)
+            disc = np.clip(
+                (rho - gamma) / _take(self.layout.pix_rad, _take(si, near)) + 0.5, 0.0, 1.0
+            )
+            sun_rgb = np.array([1.0, 0.97, 0.9], np.float32)[:, None]
+            _put(col, near, _take(col, near) + sun_rgb * (glow + 2.0 * disc))
+
+        # Distant hills along the horizon.
+        hill_top = float(np.sin(self.sky_tex.hill_el_rad.max()))
+        hl = np.nonzero(up < hill_top)[0]
+        if hl.size:
+            bh = _take(b, hl)
+            az = np.arctan2(bh[1], bh[0])
+            top = np.interp(az, self.sky_tex.hill_az_rad, self.sky_tex.hill_el_rad).astype(
+                np.float32
+            )
+            el = np.arcsin(np.clip(_take(up, hl), -1.0, 1.0))
+            below = top - el
+            cover = np.clip(below / _take(self.layout.pix_rad, _take(si, hl)) + 0.5, 0.0, 1.0)
+            shade = np.clip(1.0 - below * (1.0 / 0.05), 0.6, 1.0)
+            hill = np.asarray(sky.hill_rgb, np.float32)[:, None] * (0.6 * shade) + 0.4 * hor
+            cur = _take(col, hl)
+            _put(col, hl, cur + (hill - cur) * cover)
+        _put(fr.colour, si, col)
+
+    # ---------------------------------------------------------------------------------
+    # Objects
+    # ---------------------------------------------------------------------------------
+    def _shade(self, albedo: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """(3, M) colour: Lambert sun + sky ambient (brighter from above) + grass bounce."""
+        sun = self.world.sun
+        L = self._L
+        ndl = np.maximum(L[0] * normal[0] + L[1] * normal[1] + L[2] * normal[2], 0.0)
+        up = -normal[2]
+        amb = sun.ambient * (0.55 + 0.45 * up) + sun.ground_bounce * np.maximum(-up, 0.0)
+        irr = (sun.irradiance * ndl + amb).astype(np.float32)
+        return albedo * irr
+
+    def _blend(
+        self, fr: _Frame, idx: np.ndarray, col: np.ndarray, alpha: np.ndarray, t: np.ndarray
+    ) -> None:
+        """Composite ``col`` over the buffer with coverage ``alpha``; solid pixels set depth."""
+        cur = _take(fr.colour, idx)
+        cur += (col - cur) * alpha.astype(np.float32)
+        _put(fr.colour, idx, cur)
+        solid = np.nonzero(alpha >= 0.5)[0]
+        fr.depth[_take(idx, solid)] = _take(t, solid)
+
+    def _draw_canopies(self, fr: _Frame) -> None:
+        """All tree canopies in one pass: per pixel the nearest covering sphere wins."""
+        if self._sph_radius.size == 0:
+            return
+        pix, k = self._pairs(self._tiles_hit(fr, self._sph_centre, self._sph_radius))
+        if pix.size == 0:
+            return
+        b = _take(fr.B, pix).astype(np.float64)
+        pw = _take(self.layout.pix_rad, pix)
+        centre = _take(self._sph_centre.T, k)
+        radius = _take(self._sph_radius, k)
+        alpha, th, tc = _sphere_terms(b, centre, radius, fr.origin, pw)
+        ok = (alpha > 0) & (tc > 0) & (th < _take(fr.depth, pix))
+        sel = np.nonzero(ok)[0]
+        if sel.size == 0:
+            return
+        pix, k, b, alpha, th = _take_all(sel, pix, k, b, alpha, th)
+        key = np.where(alpha >= 0.5, th, 1e9 - alpha)  # solid: nearest; else: most covering
+        win = self._resolve(pix, key)
+        pix, k, b, alpha, th = _take_all(win, pix, k, b, alpha, th)
+        hit = fr.origin[:, None] + th * b
+        normal = (hit - _take(self._sph_centre.T, k)) / _take(self._sph_radius, k)
+        albedo = _take(self._sph_albedo, k)
+        leafy = np.nonzero(_take(self._sph_leafy, k))[0]
+        if leafy.size:
+            hl = _take(hit, leafy)
+            foot = (_take(th, leafy) * _take(self.layout.pix_rad, _take(pix, leafy))).astype(
+                np.float32
+            )
+            # Leaf clumps: the grass detail, stretched over the crown as a pseudo-3-D
+            # pattern (fixed to the surface, so it moves with the tree in the image).
+            pn = (hl[0] * 0.45 + hl[2] * 0.3).astype(np.float32)
+            pe = (hl[1] * 0.45 - hl[2] * 0.25 + hl[0] * 0.1).astype(np.float32)
+            det = self._sample_detail(pn, pe, foot * np.float32(0.45))
+            lum = (det[0] + det[1] + det[2]) * np.float32(1.0 / 384.0)
+            lum *= lum
+            _put(albedo, leafy, _take(albedo, leafy) * (lum * lum))
+        self._blend(fr, pix, self._shade(albedo, normal), alpha, th)
+
+    def _draw_cylinders(self, fr: _Frame) -> None:
+        """Trunks and posts in one pass, anti-aliased across their width."""
+        if self._cyl_radius.size == 0:
+            return
+        pix, k = self._pairs(self._tiles_hit(fr, self._cyl_bound_centre, self._cyl_bound_radius))
+        if pix.size == 0:
+            return
+        b = _take(fr.B, pix).astype(np.float64)
+        o = fr.origin
+        base = _take(self._cyl_base, k)
+        radius = _take(self._cyl_radius, k)
+        dn, de = o[0] - base[0], o[1] - base[1]
+        a = np.maximum(b[0] * b[0] + b[1] * b[1], 1e-12)
+        q = b[0] * dn + b[1] * de
+        tc = -q / a  # ray parameter (= range, |b| = 1) of the closest approach to the axis
+        perp2 = np.maximum(dn * dn + de * de - q * q / a, 0.0)
+        alpha = np.clip(
+            (radius - np.sqrt(perp2)) / (_take(self.layout.pix_rad, pix) * np.maximum(tc, 1e-6))
+            + 0.5,
+            0.0,
+            1.0,
+        )
+        th = tc - np.sqrt(np.maximum(radius * radius - perp2, 0.0) / a)
+        d_hit = o[2] + th * b[2]
+        ok = (
+            (alpha > 0)
+            & (tc > 0)
+            & (d_hit <= 0.0)
+            & (d_hit >= -_take(self._cyl_height, k))
+            & (th < _take(fr.depth, pix))
+        )
+        sel = np.nonzero(ok)[0]
+        if sel.size == 0:
+            return
+        pix, k, b, alpha, th = _take_all(sel, pix, k, b, alpha, th)
+        win = self._resolve(pix, np.where(alpha >= 0.5, th, 1e9 - alpha))
+        pix, k, b, alpha, th = _take_all(win, pix, k, b, alpha, th)
+        base = _take(self._cyl_base, k)
+        hn = o[0] + th * b[0] - base[0]
+        he = o[1] + th * b[1] - base[1]
+        degenerate = np.hypot(hn, he) < 1e-9
+        hn = np.where(degenerate, -b[0], hn)
+        he = np.where(degenerate, -b[1], he)
+        norm = np.maximum(np.hypot(hn, he), 1e-12)
+        normal = np.stack([hn / norm, he / norm, np.zeros_like(hn)])
+        self._blend(fr, pix, self._shade(_take(self._cyl_albedo, k), normal), alpha, th)
+
+    def _draw_box(self, fr: _Frame, box: Box) -> None:
+        lo3, hi3 = np.asarray(box.min_ned_m), np.asarray(box.max_ned_m)
+        hit_tiles = self._tiles_hit(
+            fr, ((lo3 + hi3) / 2.0)[None, :], np.array([np.linalg.norm(hi3 - lo3) / 2.0])
+        )
+        tiles = np.nonzero(hit_tiles[:, 0])[0]
+        if tiles.size == 0:
+            return
+        idx = self.layout.pixels_of_tiles(tiles)
+        b = _take(fr.B, idx).astype(np.float64)
+        o = fr.origin[:, None]
+        lo, hi = lo3[:, None], hi3[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / b
+            t1 = (lo - o) * inv
+            t2 = (hi - o) * inv
+        tn = np.fmin(t1, t2)
+        tnear = tn.max(axis=0)
+        tfar = np.fmax(t1, t2).min(axis=0)
+        ok = (tfar >= tnear) & (tnear > 0) & (tnear < _take(fr.depth, idx))
+        sel = np.nonzero(ok)[0]
+        if sel.size == 0:
+            return
+        ii = _take(idx, sel)
+        th = _take(tnear, sel)
+        bb = _take(b, sel)
+        axis = _take(tn, sel).argmax(axis=0)
+        cols = np.arange(sel.size)
+        normal = np.zeros((3, sel.size))
+        normal[axis, cols] = -np.sign(bb[axis, cols])
+        hit = o + th * bb
+        roof = axis == 2
+        along = np.where(axis == 0, hit[1] - lo[1], hit[0] - lo[0])
+        height = -hit[2]
+        frac = along / 1.6 - np.floor(along / 1.6)
+        window = (~roof) & (height > 1.1) & (height < 2.2) & (frac > 0.3) & (frac < 0.7)
+        wall = np.where(
+            window,
+            np.asarray(box.window_albedo_rgb)[:, None],
+            np.asarray(box.wall_albedo_rgb)[:, None],
+        )
+        albedo = np.where(roof, np.asarray(box.roof_albedo_rgb)[:, None], wall)
+        albedo = albedo * (0.9 + 0.1 * np.cos(height * 7.0 + along * 0.8))
+        _put(fr.colour, ii, self._shade(albedo, normal).astype(np.float32))
+        fr.depth[ii] = th
+
+    def _draw_ball(
+        self, fr: _Frame, centre: FloatArray, ball: Ball
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Draw a ball; returns the pixels it touched and their coverage (or None)."""
+        hit_tiles = self._tiles_hit(fr, centre[None, :], np.array([ball.radius_m]))
+        tiles = np.nonzero(hit_tiles[:, 0])[0]
+        if tiles.size == 0 or np.linalg.norm(centre - fr.origin) <= ball.radius_m:
+            return None
+        idx = self.layout.pixels_of_tiles(tiles)
+        b = _take(fr.B, idx).astype(np.float64)
+        alpha, th, tc = _sphere_terms(
+            b,
+            centre.reshape(3, 1),
+            np.array([ball.radius_m]),
+            fr.origin,
+            _take(self.layout.pix_rad, idx),
+        )
+        sel = np.nonzero((alpha > 0) & (tc > 0) & (th < _take(fr.depth, idx)))[0]
+        if sel.size == 0:
+            return None
+        ii, bb, th, alpha = _take(idx, sel), _take(b, sel), _take(th, sel), _take(alpha, sel)
+        normal = (fr.origin[:, None] + th * bb - centre[:, None]) / ball.radius_m
+        albedo = np.asarray(ball.albedo_rgb, np.float32)[:, None]
+        col = self._shade(albedo, normal)
+        half = self._L[:, None] - bb
+        half /= np.sqrt(np.sum(half * half, axis=0))
+        spec = np.clip(np.sum(normal * half, axis=0), 0.0, 1.0) ** 30
+        col += (_BALL_SPECULAR * self.world.sun.irradiance * spec).astype(np.float32)
+        self._blend(fr, ii, col, alpha, th)
+        return ii, alpha
+
+    def _draw_target(
+        self, fr: _Frame, centre: FloatArray, R_ned_from_obj: FloatArray, target: SolidTarget
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Draw a box, cylinder or disc; returns the pixels it touched and their coverage.
+
+        Adaptive anti-aliasing: one ray per pixel first; a pixel whose ray hits (and passes
+        the depth test) like all eight neighbours', on the same face, takes that ray's
+        shading at full coverage; every pixel on a boundary (silhouette, occlusion, face
+        edge) is resolved with 4 × 4 rays. Objects under three pixels thick get the 4 × 4
+        rays everywhere (a sliver could pass between pixel centres).
+        """
+        rb = target.bounding_radius_m
+        hit_tiles = self._tiles_hit(fr, centre[None, :], np.array([rb]))
+        tiles = np.nonzero(hit_tiles[:, 0])[0]
+        if tiles.size == 0:
+            return None
+        lay = self.layout
+        idx = lay.pixels_of_tiles(tiles)
+        v = centre - fr.origin
+        dist = float(np.linalg.norm(v))
+        thin = False
+        if dist > rb * 1.0001:
+            # Only pixels whose bearing is within the bounding cone (plus 1.5 pixels).
+            pix = _take(lay.pix_rad, idx)
+            cos_b = np.clip((v / dist).astype(np.float32) @ _take(fr.B, idx), -1.0, 1.0)
+            keep = np.nonzero(np.arccos(cos_b) <= math.asin(rb / dist) + 1.5 * pix)[0]
+            if keep.size == 0:
+                return None
+            idx = _take(idx, keep)
+            thin = min(target.size_m) / dist < 3.0 * float(_take(pix, keep).max())
+        depth = _take(fr.depth, idx)
+        if fr.ground_t is not None:
+            # Where the ground is what the pixel shows, each ray meets it at its own range:
+            # test against "above the ground" instead of the pixel centre's ground range.
+            depth = np.where(depth == _take(fr.ground_t, idx), np.float32(np.inf), depth)
+        albedo = np.asarray(target.albedo_rgb, np.float32)[:, None]
+        o_down = float(fr.origin[2])
+
+        def visible(
+            t_near: np.ndarray, t_far: np.ndarray, rays: np.ndarray, d: np.ndarray
+        ) -> np.ndarray:
+            """Rays that enter the target in front of the camera, before the depth buffer's
+            range and above the ground."""
+            return (
+                (t_near <= t_far)
+                & (t_near > 0)
+                & (t_near < d)
+                & (o_down + t_near * rays[2] <= 1e-9)
+            )
+
+        def shade(view: np.ndarray, normal: np.ndarray) -> np.ndarray:
+            col = self._shade(albedo, normal)
+            if target.specular > 0:
+                half = self._L[:, None] - view
+                half /= np.sqrt(np.sum(half * half, axis=0))
+                spec = np.clip(np.sum(normal * half, axis=0), 0.0, 1.0) ** _SPECULAR_EXPONENT
+                col += (target.specular * self.world.sun.irradiance * spec).astype(np.float32)
+            return col
+
+        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        if thin:
+            edge = np.arange(idx.size)
+        else:
+            b = _take(fr.B, idx).astype(np.float64)
+            t_near, t_far, normal = ray_target_ned(target, centre, R_ned_from_obj, fr.origin, b)
+            hit = visible(t_near, t_far, b, depth)
+            boundary = self._boundary(idx, hit, normal)
+            inner = np.nonzero(hit & ~boundary)[0]
+            if inner.size:
+                col = shade(_take(b, inner), _take(normal, inner))
+                parts.append((inner, col, np.ones(inner.size), _take(t_near, inner)))
+            edge = np.nonzero(boundary)[0]
+        if edge.size:
+            assert fr.R_ned_from_cam is not None
+            du_cam, dv_cam = lay.pixel_axes_cam()
+            R = fr.R_ned_from_cam
+            pe = _take(idx, edge)
+            rays = (
+                _take(fr.B, pe).astype(np.float64)[:, :, None]
+                + (R @ _take(du_cam, pe).astype(np.float64))[:, :, None] * _SUB_U
+                + (R @ _take(dv_cam, pe).astype(np.float64))[:, :, None] * _SUB_V
+            )
+            rays /= np.sqrt(np.sum(rays * rays, axis=0))
+            s = _SUB * _SUB
+            flat = rays.reshape(3, edge.size * s)
+            t_near, t_far, normal = ray_target_ned(target, centre, R_ned_from_obj, fr.origin, flat)
+            hit = visible(t_near, t_far, flat, np.repeat(_take(depth, edge), s))
+            count = hit.reshape(edge.size, s).sum(axis=1)
+            sel = np.nonzero(count > 0)[0]
+            if sel.size:
+                hi = np.nonzero(hit)[0]
+                col = shade(_take(flat, hi), _take(normal, hi))
+                owner = hi // s
+                acc = np.stack(
+                    [np.bincount(owner, weights=col[c], minlength=edge.size) for c in range(3)]
+                )
+                n_hit = _take(count, sel)
+                colour = (_take(acc, sel) / n_hit).astype(np.float32)
+                t_min = np.where(hit, t_near, np.inf).reshape(edge.size, s).min(axis=1)
+                parts.append((_take(edge, sel), colour, n_hit / float(s), _take(t_min, sel)))
+        if not parts:
+            return None
+        which = np.concatenate([p[0] for p in parts])
+        colour = np.concatenate([p[1] for p in parts], axis=1).astype(np.float32)
+        alpha = np.concatenate([p[2] for p in parts])
+        t_hit = np.concatenate([p[3] for p in parts])
+        ii = _take(idx, which)
+        self._blend(fr, ii, colour, alpha, t_hit)
+        return ii, alpha
+
+    def _boundary(self, idx: np.ndarray, hit: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """(M,) bool: pixels ``idx`` whose hit state differs from an 8-neighbour's, or
+        whose surface normal does (a face edge). Works on the band of image rows the
+        pixels span, plus a margin; columns wrap (the panorama's seam)."""
+        rows, cols = _take(self.layout.pixel_rc(), idx)
+        r_off = int(rows.min()) - 1
+        h = int(rows.max()) - r_off + 2
+        w = self.layout.tiles_x * self.layout.tile_px
+        r = rows - r_off
+        hit_img = np.zeros((h, w), bool)
+        hit_img[r, cols] = hit
+        n_img = np.zeros((3, h, w), np.float32)
+        n_img[:, r, cols] = np.where(hit, normal, 0.0)
+        out = np.zeros((h, w), bool)
+        for dy, dx in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+            nb_hit = np.roll(hit_img, (dy, dx), axis=(0, 1))
+            nb_n = np.roll(n_img, (dy, dx), axis=(1, 2))
+            out |= hit_img != nb_hit
+            out |= hit_img & nb_hit & (np.sum(n_img * nb_n, axis=0) < 0.9)
+        return np.asarray(out[r, cols])
+
+    def _target_shadows(
+        self, fr: _Frame, targets: list[tuple[FloatArray, SolidTarget]], t_s: float
+    ) -> np.ndarray:
+        """(N,) sunlit fraction left by the non-spherical targets' shadows.
+
+        A convex solid's shadow on the ground is the convex hull of its points projected
+        along the sun: a polygon; coverage is ``clip(-d / w + ½, 0, 1)`` with ``d`` the
+        signed distance to the polygon (the largest over its edges), ``w`` the pixel's
+        ground footprint or the sun's penumbra, whichever is wider.
+        """
+        sunlit = np.ones(self.layout.n, np.float32)
+        L = self._L
+        if L[2] > -1e-3:
+            return sunlit
+        feet = [_footprint(c, tg.bounding_radius_m, L) for c, tg in targets]
+        hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
+        for k, (centre, target) in enumerate(targets):
+            tiles = np.nonzero(hit[:, k])[0]
+            if tiles.size == 0:
+                continue
+            idx = self.layout.pixels_of_tiles(tiles)
+            idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
+            if idx.size == 0:
+                continue
+            pts = _outline_points_ned(target, centre, target.R_ned_from_obj(t_s))
+            ground_pts = pts[:, :2] - (pts[:, 2] / L[2])[:, None] * L[None, :2]
+            hull = _convex_hull_2d(ground_pts)
+            _, n, e, foot = self._ground_hits(fr, idx)
+            mid = hull.mean(axis=0)
+            reach = float(np.hypot(*(hull - mid).T).max())
+            rise = max(-float(centre[2]), 0.0) / -float(L[2])
+            pen = max(rise * _SUN_PENUMBRA, 1e-6)
+            near = np.nonzero(np.hypot(n - mid[0], e - mid[1]) < reach + foot + pen)[0]
+            if near.size == 0:
+                continue
+            idx, n, e, foot = _take_all(near, idx, n, e, foot)
+            a = hull
+            bvec = np.roll(hull, -1, axis=0) - hull
+            length = np.maximum(np.hypot(bvec[:, 0], bvec[:, 1]), 1e-12)
+            out_n = np.stack([bvec[:, 1], -bvec[:, 0]], axis=1) / length[:, None]  # CCW hull
+            d = (n.astype(np.float64)[:, None] - a[None, :, 0]) * out_n[None, :, 0] + (
+                e.astype(np.float64)[:, None] - a[None, :, 1]
+            ) * out_n[None, :, 1]
+            dmax = d.max(axis=1)
+            width = np.maximum(foot.astype(np.float64), pen)
+            cover = np.clip(-dmax / width + 0.5, 0.0, 1.0)
+            sunlit[idx] *= (1.0 - cover).astype(np.float32)
+        return sunlit
+
+
+def _outline_points_ned(
+    target: SolidTarget, centre_ned_m: FloatArray, R_ned_from_obj: FloatArray
+) -> FloatArray:
+    """(K, 3) points whose convex hull is the target (box corners, or the two rims)."""
+    if isinstance(target, BoxTarget):
+        hx, hy, hz = target.half_extent_m
+        pts = np.array(
+            [[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+        )
+    else:
+        phi = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
+        rim = np.stack([target.radius_m * np.cos(phi), target.radius_m * np.sin(phi)], axis=1)
+        hh = target.height_m / 2.0
+        pts = np.concatenate(
+            [
+                np.column_stack([rim, np.full(len(phi), -hh)]),
+                np.column_stack([rim, np.full(len(phi), hh)]),
+            ]
+        )
+    return np.asarray(centre_ned_m, np.float64) + pts @ np.asarray(R_ned_from_obj).T
+
+
+def _convex_hull_2d(points: FloatArray) -> FloatArray:
+    """Convex hull (H, 2) of 2-D points, counter-clockwise in (x, y) (Andrew's chain)."""
+    pts = np.unique(np.round(np.asarray(points, np.float64), 9), axis=0).astype(np.float64)
+    if len(pts) < 3:
+        return pts
+
+    def cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+        return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+
+    lower: list[np.ndarray] = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    upper: list[np.ndarray] = []
+    for p in pts[::-1]:
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1], dtype=np.float64)
+
+
+def _sphere_terms(
+    b: np.ndarray, centre: np.ndarray, radius: np.ndarray, origin: FloatArray, pix: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Coverage, hit range and closest-approach range of bearings ``b`` (3, M) on spheres.
+
+    ``centre`` (3, M) or (3, 1) and ``radius`` (M,) or (1,) per bearing. Coverage is
+    ``clip((ρ - γ)/p + ½)``; for grazing misses the hit range is the closest approach.
+    A camera inside a sphere sees none of it.
+    """
+    oc = centre - origin[:, None]
+    l2 = np.sum(oc * oc, axis=0)
+    tc = np.sum(oc * b, axis=0)
+    perp2 = np.maximum(l2 - tc * tc, 0.0)
+    gamma = np.arctan2(np.sqrt(perp2), tc)
+    rho = np.arcsin(np.minimum(radius / np.sqrt(l2), 1.0))
+    alpha = np.clip((rho - gamma) / pix + 0.5, 0.0, 1.0)
+    alpha = np.where(l2 > radius * radius, alpha, 0.0)
+    th = tc - np.sqrt(np.maximum(radius * radius - perp2, 0.0))
+    return alpha, th, tc

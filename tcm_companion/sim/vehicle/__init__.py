@@ -1,0 +1,2 @@
+"""What flies the simulated field: synthetic telemetry, the mock autopilot (and the
+ArduPilot applet inside it) and real ArduCopter SITL."""

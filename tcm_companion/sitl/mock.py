@@ -1,0 +1,655 @@
+"""SITL: the mock autopilot, a camera rendered from its true state, and the companion.
+
+Two clocks:
+
+- **real** (``tcm-companion sitl``, ``make run``, ``run`` with ``[camera] source =
+  "sim"``): the asyncio :class:`~tcm_companion.service.daemon.Daemon` with its camera thread, the mock
+  autopilot on its asyncio runner, MAVLink over real loopback UDP (the mock listens on an
+  ephemeral port, ``udpin:127.0.0.1:0``), all in one process in real time, with a live
+  status line.
+- **virtual** (``tcm-companion sitl --clock virtual``): the same
+  :class:`~tcm_companion.service.companion.Companion`, plumbing, mock and simulated camera on one simulated
+  clock (:mod:`.virtual`), as fast as the CPU allows; the same seed and
+  configuration give byte-identical results and flight logs, run after run.
+
+Either way the simulated camera renders the scenario's world from the vehicle's *true*
+pose at each frame's capture time, while the companion only knows what the mock's
+(noisy, delayed) telemetry tells it — the same split as on a real drone. When the mock
+brakes on a collision-course alarm, the camera sees the braking, so the loop is closed.
+
+Every processed frame is scored against the simulator's truth (objects matched by
+bearing), and :class:`SitlReport` summarises accuracy, latency, drops and faults. A run
+fails (``report.ok`` False, ``sitl`` exits 1) when nothing was processed, the frame
+counts do not add up, the autopilot rejected messages, the watchdog was withheld, or the
+accuracy of the decided object-frames after the warm-up is below ``min_accuracy`` —
+or nothing was decided although a ball was in view after the warm-up.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import logging
+import math
+import os
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from ..config import AppConfig
+from ..core.camera import CameraModel
+from ..core.frames import angle_between, normalize
+from ..core.pipeline import FrameResult
+from ..flightlog.handle import FlightLog
+from ..io.transports import Transport, open_transport
+from ..logsetup import start_flight_log
+from ..service.daemon import Daemon
+from ..service.endpoint_setup import make_endpoint, persist, resolve_state_paths
+from ..service.plumbing import CameraInput, DaemonSummary, NotifierLike
+from ..sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
+from ..sim.vehicle.mock_autopilot_run import run_mock_autopilot
+from .virtual import RunTimer, VirtualTimeModel, frame_result_key
+
+log = logging.getLogger(__name__)
+
+MATCH_GATE_RAD = math.radians(5.0)
+WARMUP_S = 2.0  # object-frames before this (run time) are not scored
+#: Least accuracy of the decided object-frames after the warm-up for a run to pass.
+DEFAULT_MIN_ACCURACY = 0.90
+
+Clock = Literal["real", "virtual"]
+#: ``camera_factory(mock, model, **camera_kwargs)``: the SITL camera (tests wrap the
+#: simulated one to make it fail). ``camera_kwargs`` go to
+#: :meth:`~tcm_companion.sim.scene.truth_camera.SimulatedCamera.for_mock`: the sensor noise, and
+#: in virtual time the simulated clock and a sleep that does not sleep.
+CameraFactory = Callable[..., Any]
+
+
+@dataclass
+class Score:
+    """Object-frames of balls in view, matched to the daemon's objects by bearing."""
+
+    truth_frames: int = 0  # object-frames with the object in front of the camera
+    truth_after_warmup: int = 0  # ... of them after the warm-up
+    matched: int = 0
+    decided: int = 0  # matched and not "unknown" (after the warm-up)
+    correct: int = 0
+    scored: int = 0  # matched after the warm-up
+    by_state: Counter[str] = field(default_factory=Counter)
+
+    @property
+    def accuracy(self) -> float:
+        return self.correct / self.decided if self.decided else math.nan
+
+    @property
+    def coverage(self) -> float:
+        return self.decided / self.scored if self.scored else math.nan
+
+
+@dataclass
+class SitlReport:
+    scenario: str
+    summary: DaemonSummary
+    score: Score
+    braked: bool
+    mock_status_received: int
+    mock_status_problems: int
+    mock_problem_kinds: dict[str, int]
+    failures: list[str]
+    clock: Clock = "real"
+    min_accuracy: float | None = DEFAULT_MIN_ACCURACY
+    results_sha256: str = ""  # every processed frame's result, floats exact
+    results_frames: int = 0
+    wall_s: float = 0.0  # how long the run took (virtual time: the speed-up's divisor)
+    cpu_s: float = 0.0
+    model: VirtualTimeModel | None = None  # virtual time: what it assumed
+    loop_lag_max_ms: float = 0.0  # real time: the longest the event loop was late to a timer
+    stale_excused: int = 0  # real time: "stale" statuses while the loop stalled >= 0.5 s
+    log: Any = None  # the flight log's final stats, when logging
+    log_sha256: str = ""  # the flight log's bytes (all parts, in order)
+    statustexts: list[str] = field(default_factory=list)  # what the daemon told the GCS
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+    @property
+    def speedup(self) -> float:
+        """Simulated (virtual) or flown (real) seconds per second of wall time."""
+        return self.summary.duration_s / self.wall_s if self.wall_s > 0 else math.nan
+
+    def accuracy_text(self) -> str:
+        sc = self.score
+        if not sc.decided:
+            return f"no decision ({sc.truth_after_warmup} object-frames in view)"
+        floor = "" if self.min_accuracy is None else f" (floor {100 * self.min_accuracy:.0f}%)"
+        return f"accuracy {100 * sc.accuracy:.1f}% of {sc.decided} decided{floor}"
+
+    def lines(self) -> list[str]:
+        """The summary; with the virtual clock every line but the last ("speed") is the
+        same run after run."""
+        s, sc = self.summary, self.score
+        lat = [s.latency_percentile_ms(q) for q in (50, 90, 99)]
+        modelled = ""
+        if self.model is not None:
+            modelled = (
+                f" (modelled: pipeline {self.model.process_us / 1000:g} ms, link"
+                f" {self.model.link_latency_us / 1000:g} ms)"
+            )
+        coverage = "n/a" if not sc.scored else f"{100 * sc.coverage:.1f}%"
+        out = [
+            f"SITL {self.scenario}: {s.duration_s:.1f} s, {self.clock} clock",
+            f"  frames: captured {s.captured} = processed {s.processed} + dropped {s.dropped}"
+            f" + failed {s.failed} + rejected {s.rejected}"
+            f" ({'balanced' if s.frames_balance else 'NOT BALANCED'})",
+            f"  latency capture->MAVLink: p50 {lat[0]:.2f} ms, p90 {lat[1]:.2f} ms,"
+            f" p99 {lat[2]:.2f} ms{modelled}",
+            f"  objects: {sc.matched}/{sc.truth_frames} object-frames matched; after {WARMUP_S:.0f} s"
+            f" warm-up: {self.accuracy_text()}, coverage {coverage}",
+            f"  states: {dict(sc.by_state)}",
+            f"  mock autopilot: {self.mock_status_received} TCM_OBJECT_STATUS received,"
+            f" {self.mock_status_problems} with problems"
+            + (f" {self.mock_problem_kinds}" if self.mock_problem_kinds else "")
+            + f"; braked: {self.braked}",
+            f"  faults: {s.faults or 'none'}; watchdog pings {s.watchdog_pings},"
+            f" withheld {s.watchdog_withheld}",
+            f"  results: sha256 {self.results_sha256[:16]} of {self.results_frames} frames",
+        ]
+        if self.stale_excused or self.loop_lag_max_ms >= 500.0:
+            out.append(
+                f"  event loop stalled up to {self.loop_lag_max_ms:.0f} ms (machine load);"
+                f" {self.stale_excused} status(es) the mock found stale then were excused"
+            )
+        if self.log is not None:
+            lg = self.log
+            out.append(
+                f"  flight log: {lg.frames_logged} frames logged + {lg.frames_dropped_queue}"
+                f" dropped (queue) + {lg.frames_dropped_disk} (disk), {lg.bytes_written / 1e6:.1f} MB"
+                f" in {len(lg.files)} file(s), sha256 {self.log_sha256[:16]}"
+            )
+        if self.failures:
+            out.append("  FAILED: " + "; ".join(self.failures))
+        if self.log is not None:
+            out.append(f"  flight log files: {', '.join(str(f) for f in self.log.files[-2:])}")
+        out.append(
+            f"  speed: {s.duration_s:.1f} s in {self.wall_s:.1f} s wall, {self.cpu_s:.1f} s CPU:"
+            f" {self.speedup:.2f}x real time"
+        )
+        return out
+
+
+class _Scorer:
+    """Scores each frame's objects against the mock's true vehicle and balls, and
+    hashes every result (the digest two virtual runs must agree on)."""
+
+    def __init__(self, mock: Any, camera: CameraModel, start_mono_us: int) -> None:
+        self.mock = mock
+        self.camera = camera
+        self.start_mono_us = start_mono_us
+        self.score = Score()
+        self.digest = hashlib.sha256()
+        self.frames = 0
+
+    def __call__(self, camera_id: int, result: FrameResult) -> None:
+        self.digest.update(frame_result_key(camera_id, result))
+        self.frames += 1
+        truth = self.mock.vehicle_truth(result.t_us)
+        R_cam_from_ned = (truth.R_ned_from_body @ self.camera.R_body_from_cam).T
+        warm = (result.t_us - self.start_mono_us) / 1e6 >= WARMUP_S
+        objs = [o for o in result.objects if o.detected]
+        used: set[int] = set()
+        sc = self.score
+        for obj in self.mock.plan.objects:  # balls and targets of any shape
+            rel = obj.centre_ned_m(truth.t_s) - truth.position_ned_m
+            b_true = normalize(rel)
+            px = self.camera.pixel_from_bearing_cam(R_cam_from_ned @ b_true)
+            if not np.all(np.isfinite(px)) or not bool(self.camera.in_image(px)):
+                continue
+            sc.truth_frames += 1
+            sc.truth_after_warmup += int(warm)
+            alpha = math.asin(min(1.0, obj.bounding_radius_m / float(np.linalg.norm(rel))))
+            best, best_ang = -1, math.inf
+            for i, o in enumerate(objs):
+                ang = float(angle_between(o.bearing_ned, b_true))
+                if i not in used and ang < best_ang:
+                    best, best_ang = i, ang
+            if best < 0 or best_ang > MATCH_GATE_RAD + 2 * alpha:
+                continue
+            used.add(best)
+            sc.matched += 1
+            if not warm:
+                continue
+            o = objs[best]
+            sc.scored += 1
+            sc.by_state[o.state] += 1
+            if o.state != "unknown":
+                sc.decided += 1
+                sc.correct += int((o.state == "moving") == obj.moving)
+
+
+class _LoopLag:
+    """Real time only: how late the event loop runs a 50 ms timer, at worst (ms)."""
+
+    def __init__(self) -> None:
+        self.max_ms = 0.0
+
+    async def run(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            t = loop.time()
+            await asyncio.sleep(0.05)
+            self.max_ms = max(self.max_ms, (loop.time() - t - 0.05) * 1000.0)
+
+
+@contextlib.contextmanager
+def _state_directory(state_dir: str | None, config: AppConfig) -> Iterator[str]:
+    """The run's state directory; a temporary one (removed after) unless given."""
+    given = state_dir or config.daemon.state_dir
+    if given:
+        yield given
+        return
+    sdir = tempfile.mkdtemp(prefix="tcm-sitl-state-")
+    try:
+        yield sdir
+    finally:
+        for f in Path(sdir).glob("*"):
+            with contextlib.suppress(OSError):
+                f.unlink()
+        with contextlib.suppress(OSError):
+            os.rmdir(sdir)
+
+
+def _mock_config(config: AppConfig, unix_us_at_start: int) -> MockAutopilotConfig:
+    sim = config.sim
+    return MockAutopilotConfig(
+        scenario=sim.scenario.upper(),
+        seed=sim.seed,
+        noise=sim.telemetry_noise,
+        ekf_origin_delay_us=sim.ekf_origin_delay_us,
+        brake_on_collision=sim.brake_on_collision,
+        unix_us_at_start=unix_us_at_start,
+    )
+
+
+def _sim_camera(
+    config: AppConfig,
+    mock: Any,
+    model: CameraModel,
+    camera_factory: CameraFactory | None,
+    **camera_kwargs: Any,
+) -> list[CameraInput]:
+    from ..sim.scene.truth_camera import SimulatedCamera
+
+    camera_kwargs.setdefault("noise_dn", config.camera.source.sim_noise_dn)
+    if camera_factory is not None:
+        source = camera_factory(mock, model, **camera_kwargs)
+    else:
+        source = SimulatedCamera.for_mock(model, mock, **camera_kwargs)
+    return [CameraInput("camera0", model, source)]
+
+
+def _file_sha256(paths: Sequence[Path]) -> str:
+    h = hashlib.sha256()
+    for p in paths:
+        with contextlib.suppress(OSError):
+            h.update(Path(p).read_bytes())
+    return h.hexdigest()
+
+
+def _report(
+    *,
+    mock: Any,
+    summary: DaemonSummary,
+    scorer: _Scorer,
+    flight_log: FlightLog | None,
+    statustexts: list[str],
+    clock: Clock,
+    min_accuracy: float | None,
+    timer: RunTimer,
+    model: VirtualTimeModel | None = None,
+    loop_lag_ms: float = 0.0,
+) -> SitlReport:
+    # Real time only: the daemon and the mock share this process's event loop. When the
+    # machine stalls the whole loop (a loaded CI runner), a status can reach the mock over
+    # a second after capture, and the mock rightly calls it stale. That is the machine,
+    # not the daemon's time base: such "stale" records are excused, and reported, only
+    # when the loop was measured to stall for at least half a second. In virtual time
+    # nothing stalls: every stale status is a bug.
+    stalled = clock == "real" and loop_lag_ms >= 500.0
+    received = list(mock.received_status)
+    problems = [r for r in received if not r.ok and not (stalled and r.problems == ("stale",))]
+    excused = sum(1 for r in received if not r.ok) - len(problems)
+    kinds: Counter[str] = Counter()
+    for r in problems:
+        for p in r.problems:
+            kinds[p] += 1
+    sc = scorer.score
+    failures = []
+    if summary.processed == 0:
+        failures.append("no frame was processed")
+    if not summary.frames_balance:
+        failures.append("frame counts do not add up")
+    if not received and summary.processed > 0 and sc.matched > 0:
+        failures.append("the autopilot received no TCM_OBJECT_STATUS")
+    if problems:
+        failures.append(f"{len(problems)} status messages failed the autopilot's checks")
+    log_stats = None
+    log_sha = ""
+    if flight_log is not None:
+        log_stats = flight_log.stats
+        delivered = sum(c.delivered for c in summary.camera_stats.values())
+        lg = log_stats
+        if lg.frames_logged + lg.frames_dropped_queue + lg.frames_dropped_disk != delivered:
+            failures.append("flight log: frames logged + dropped != frames delivered")
+        log_sha = _file_sha256(lg.files)
+    if summary.watchdog_withheld:
+        failures.append(f"watchdog withheld {summary.watchdog_withheld} times")
+    if min_accuracy is not None:
+        if sc.decided and sc.accuracy < min_accuracy:
+            failures.append(
+                f"accuracy {100 * sc.accuracy:.1f}% below the floor of {100 * min_accuracy:.0f}%"
+            )
+        elif not sc.decided and sc.truth_after_warmup:
+            failures.append(
+                f"no decision on {sc.truth_after_warmup} object-frames in view after the warm-up"
+            )
+    wall_s, cpu_s = timer.elapsed()
+    return SitlReport(
+        scenario=mock.config.scenario,
+        summary=summary,
+        score=sc,
+        braked=mock.braking is not None,
+        mock_status_received=len(received),
+        mock_status_problems=len(problems),
+        mock_problem_kinds=dict(kinds),
+        failures=failures,
+        clock=clock,
+        min_accuracy=min_accuracy,
+        results_sha256=scorer.digest.hexdigest(),
+        results_frames=scorer.frames,
+        wall_s=wall_s,
+        cpu_s=cpu_s,
+        model=model,
+        loop_lag_max_ms=loop_lag_ms,
+        stale_excused=excused,
+        log=log_stats,
+        log_sha256=log_sha,
+        statustexts=statustexts,
+    )
+
+
+async def run_sitl(
+    config: AppConfig,
+    cameras: list[CameraInput] | None = None,
+    *,
+    camera_model: CameraModel | None = None,
+    duration_s: float | None = 20.0,
+    stop: asyncio.Event | None = None,
+    notifier: NotifierLike | None = None,
+    on_status: Callable[[str], None] | None = None,
+    state_dir: str | None = None,
+    mock_config: MockAutopilotConfig | None = None,
+    mock: MockAutopilot | None = None,
+    camera_factory: CameraFactory | None = None,
+    links: tuple[Transport, Transport] | None = None,
+    log_dir: str | None = None,
+    clock: Clock = "real",
+    min_accuracy: float | None = DEFAULT_MIN_ACCURACY,
+    model: VirtualTimeModel | None = None,
+    schedule: Sequence[tuple[float, Callable[[int], None]]] = (),
+    link_up: Callable[[float], bool] | None = None,
+) -> SitlReport:
+    """Fly ``config.sim.scenario`` for ``duration_s`` (None: until ``stop``).
+
+    ``clock="virtual"`` runs :func:`run_sitl_virtual` (and takes its ``model``,
+    ``schedule`` and ``link_up``); the rest is real time. Tests may pass their own
+    ``mock`` (to reboot it mid-flight; on the clock the run uses: in virtual time start
+    it at :data:`~.virtual.VIRTUAL_START_MONO_US`), ``camera_factory`` (to make the
+    camera fail), and in real time ``links`` — ``(mock side, daemon side)``, opened — in
+    place of the loopback UDP pair (to cut the link). ``log_dir``: write the flight log
+    there (``[logging]`` settings). ``min_accuracy``: the floor (None: not judged).
+    """
+    if clock == "virtual":
+        if cameras is not None or links is not None:
+            raise ValueError("virtual time runs its own camera and links (camera_factory)")
+        return run_sitl_virtual(
+            config,
+            camera_model=camera_model,
+            duration_s=duration_s,
+            should_stop=stop.is_set if stop is not None else None,
+            notifier=notifier,
+            on_status=on_status,
+            state_dir=state_dir,
+            mock_config=mock_config,
+            mock=mock,
+            camera_factory=camera_factory,
+            log_dir=log_dir,
+            min_accuracy=min_accuracy,
+            model=model,
+            schedule=schedule,
+            link_up=link_up,
+        )
+    if clock != "real":
+        raise ValueError(f"clock must be 'real' or 'virtual', got {clock!r}")
+    if schedule or link_up is not None:
+        raise ValueError("schedule and link_up are virtual-time hooks")
+    timer = RunTimer()
+    mcfg = mock_config or _mock_config(config, time.time_ns() // 1000)
+    stop = stop if stop is not None else asyncio.Event()
+    now_us = time.monotonic_ns() // 1000
+    if mock is None:
+        mock = MockAutopilot(mcfg, now_us)
+    else:
+        mcfg = mock.config
+    model_cam = camera_model
+    if model_cam is None:
+        from ..core.camera import Equirectangular
+
+        model_cam = Equirectangular(360, 220)
+    if cameras is None:
+        cameras = _sim_camera(config, mock, model_cam, camera_factory)
+
+    with _state_directory(state_dir, config) as sdir:
+        settings = resolve_state_paths(config.mavlink, sdir)
+        if links is not None:
+            mock_link, daemon_link = links
+        else:
+            mock_link = open_transport("udpin:127.0.0.1:0")
+            await mock_link.open()
+            host, port = mock_link.local_address  # type: ignore[attr-defined]
+            daemon_link = open_transport(f"udpout:{host}:{port}")
+            await daemon_link.open()
+        scorer = _Scorer(mock, cameras[0].model, now_us)
+        endpoint, warnings = make_endpoint(settings, now_us)
+        for w in warnings:
+            log.warning("%s", w)
+        flight_log = None
+        if log_dir is not None and config.logging.enabled:
+            flight_log = start_flight_log(
+                config, Path(log_dir), cameras, dict(endpoint.params.values)
+            )
+        daemon = Daemon(
+            replace(config, mavlink=settings),
+            cameras,
+            transport=daemon_link,
+            endpoint=endpoint,
+            notifier=notifier,
+            on_result=scorer,
+            on_status=on_status,
+            flight_log=flight_log,
+        )
+        mock_stop = asyncio.Event()
+        lag = _LoopLag()
+        lag_task = asyncio.create_task(lag.run(), name="loop lag")
+        try:
+            mock_task = asyncio.create_task(
+                run_mock_autopilot(mock_link, mcfg, mock_stop, autopilot=mock), name="mock"
+            )
+            timer_task: asyncio.Task[Any] | None = None
+            if duration_s is not None:
+
+                async def _stop_after() -> None:
+                    await asyncio.sleep(duration_s)
+                    stop.set()
+
+                timer_task = asyncio.create_task(_stop_after(), name="duration")
+            try:
+                summary = await daemon.run(stop)
+                persist(settings, endpoint)
+            finally:
+                if timer_task is not None:
+                    timer_task.cancel()
+                # The autopilot takes in the daemon's last messages before anything else
+                # may hold things up, then the log drains off the loop (a PNG backlog takes
+                # a while; blocking the loop on it would delay what the mock still
+                # receives and make those statuses look stale).
+                mock_stop.set()
+                with contextlib.suppress(Exception):
+                    async with asyncio.timeout(2.0):
+                        await mock_task
+                if flight_log is not None:
+                    await asyncio.to_thread(flight_log.stop)
+        finally:
+            lag_task.cancel()
+            await daemon_link.close()
+            await mock_link.close()
+
+    return _report(
+        mock=mock,
+        summary=summary,
+        scorer=scorer,
+        flight_log=flight_log,
+        statustexts=endpoint.statustexts_queued,
+        clock="real",
+        min_accuracy=min_accuracy,
+        timer=timer,
+        loop_lag_ms=lag.max_ms,
+    )
+
+
+def run_sitl_virtual(
+    config: AppConfig,
+    *,
+    camera_model: CameraModel | None = None,
+    duration_s: float | None = 20.0,
+    should_stop: Callable[[], bool] | None = None,
+    notifier: NotifierLike | None = None,
+    on_status: Callable[[str], None] | None = None,
+    state_dir: str | None = None,
+    mock_config: MockAutopilotConfig | None = None,
+    mock: Any = None,
+    camera_factory: CameraFactory | None = None,
+    log_dir: str | None = None,
+    min_accuracy: float | None = DEFAULT_MIN_ACCURACY,
+    model: VirtualTimeModel | None = None,
+    schedule: Sequence[tuple[float, Callable[[int], None]]] = (),
+    link_up: Callable[[float], bool] | None = None,
+) -> SitlReport:
+    """SITL in virtual time (:mod:`.virtual`): the same arguments as
+    :func:`run_sitl`, plus ``model`` (what virtual time assumes: start, link latency,
+    pipeline time), ``schedule`` (``(run time s, fn(now_mono_us))`` calls, e.g. a mock
+    reboot) and ``link_up(run time s)`` (False: the radio is out). A passed ``mock``
+    sets the start time (its latest time); otherwise the mock starts at
+    ``model.start_mono_us`` with Unix time ``model.unix_us_at_start``."""
+    import cv2
+
+    from ..service.companion import Companion
+    from ..service.plumbing import Plumbing
+    from ..sim.scene.truth_camera import no_sleep
+    from .virtual import VirtualSitl
+
+    timer = RunTimer()
+    vm = model or VirtualTimeModel()
+    if mock is None:
+        mcfg = mock_config or _mock_config(config, vm.unix_us_at_start)
+        mock = MockAutopilot(mcfg, vm.start_mono_us)
+        start = vm.start_mono_us
+    else:
+        start = int(mock.now_us)
+    unix_minus_mono_us = vm.unix_us_at_start - start
+    model_cam = camera_model
+    if model_cam is None:
+        from ..core.camera import Equirectangular
+
+        model_cam = Equirectangular(360, 220)
+    holder: list[VirtualSitl] = []
+
+    def now_us() -> int:
+        return holder[0].now_us() if holder else start
+
+    cameras = _sim_camera(config, mock, model_cam, camera_factory, clock_us=now_us, sleep=no_sleep)
+    if config.daemon.opencv_threads:
+        cv2.setNumThreads(config.daemon.opencv_threads)
+
+    up = start + vm.companion_start_us  # the companion's start
+    with _state_directory(state_dir, config) as sdir:
+        settings = resolve_state_paths(config.mavlink, sdir)
+        scorer = _Scorer(mock, cameras[0].model, start)
+        endpoint, warnings = make_endpoint(settings, up)
+        for w in warnings:
+            log.warning("%s", w)
+        flight_log = None
+        if log_dir is not None and config.logging.enabled:
+            flight_log = start_flight_log(
+                config,
+                Path(log_dir),
+                cameras,
+                dict(endpoint.params.values),
+                unix_minus_mono_us=unix_minus_mono_us,
+                started_unix_us=vm.unix_us_at_start,
+                deterministic=True,
+            )
+        companion = Companion(
+            [c.model for c in cameras],
+            config.pipeline,
+            endpoint,
+            up,
+            config.daemon,
+            [c.name for c in cameras],
+            pipeline_timer=lambda: now_us() / 1e6,  # stages take no simulated time
+        )
+        plumbing = Plumbing(
+            companion,
+            cameras,
+            flight_log=flight_log,
+            notifier=notifier,
+            on_result=scorer,
+            on_status=on_status,
+            persist=lambda: persist(settings, endpoint),
+        )
+        sim = VirtualSitl(
+            mock,
+            companion,
+            plumbing,
+            cameras,
+            vm,
+            start_mono_us=start,
+            schedule=schedule,
+            link_up=link_up,
+        )
+        holder.append(sim)
+        try:
+            summary = sim.run(duration_s, should_stop or (lambda: False))
+            persist(settings, endpoint)
+        finally:
+            if flight_log is not None:
+                flight_log.stop()
+
+    return _report(
+        mock=mock,
+        summary=summary,
+        scorer=scorer,
+        flight_log=flight_log,
+        statustexts=endpoint.statustexts_queued,
+        clock="virtual",
+        min_accuracy=min_accuracy,
+        timer=timer,
+        model=vm,
+    )

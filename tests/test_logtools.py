@@ -313,12 +313,43 @@ def _check_pngs(paths: list[Path], names: set[str]) -> None:
 
 
 def test_plot_log_draws_every_plot(flight: Flight, tmp_path: Path) -> None:
+    from tcm_companion.logtools.plot import build_figures, load_log_data
+
+    from .test_plots import assert_legends_clear
+
     files = plot_log(flight.log_dir, tmp_path / "plots")  # the rotated-directory form
     _check_pngs(files, set(PLOT_NAMES))
     assert files.skipped == {}
     assert plot_log(flight.log_file, tmp_path / "again") == [
         tmp_path / "again" / p.name for p in files
     ]
+    figures, _ = build_figures(load_log_data(flight.log_dir))
+    assert sum(assert_legends_clear(fig) for fig in figures.values()) == 5
+
+
+def test_plot_log_health_latency_blank_before_the_first_result(
+    flight: Flight, tmp_path: Path
+) -> None:
+    """The daemon reports latency 0 ms until it has processed a frame: not plotted."""
+    from tcm_companion.logtools.plot import build_figures, load_log_data
+
+    w = _writer(tmp_path / "log")
+    w.start({"camera0": json.dumps(flight.sim.camera.to_dict())})
+    for k in range(4):  # health at 1, 2, 3, 4 s; the first frame captured at 2.5 s
+        t_us = (k + 1) * 1_000_000
+        health = {"frame_rate_hz": 0.0 if k < 2 else 25.0, "latency_ms": 0.0 if k < 2 else 6.5}
+        w.log_json("/tcm/health", t_us, {**health, "frames_dropped": 0})
+        if k == 1:
+            doc = {"camera_id": 0, "t_capture_us": 2_500_000, "objects": [], "latency_ms": 6.5}
+            w.log_json("/tcm/result", 2_506_500, doc)
+    w.stop()
+    data = load_log_data(tmp_path / "log")
+    assert data.first_result_us == 2_506_500
+    fig = build_figures(data)[0]["health"]
+    (ax,) = [a for a in fig.axes if a.get_ylabel().startswith("latency")]
+    latency = np.asarray(ax.get_lines()[0].get_ydata(), dtype=np.float64)
+    assert np.isnan(latency[:2]).all()
+    np.testing.assert_array_equal(latency[2:], 6.5)
 
 
 def test_plot_scenario_with_truth(flight: Flight, tmp_path: Path) -> None:

@@ -10,12 +10,18 @@ the scenario's ``truth.csv`` overlaid where it has one. Both write:
 ``disparity.png``  TCM disparity δ per track over time, coloured by state, with the
                    threshold; truth "object moving" as background bands
 ``bearings.png``   azimuth and elevation (local-level NED) per track; truth bearings
-``ttc.png``        time to contact per track; frames flagged collision course marked
+``ttc.png``        time to contact per track; frames flagged collision course marked;
+                   the true time to contact (range over closing speed) per truth object
 ``egomotion.png``  translation-direction uncertainty σ and inlier ratio over time
 ``latency.png``    histogram of capture → MAVLink latency (replay: processing time)
 ``attitude.png``   roll, pitch, yaw of the autopilot's attitude
 ``health.png``     frame rate, latency and dropped frames from ``/tcm/health`` (logs)
 =================  ===============================================================
+
+Legends sit outside the axes (right of them) so that they never hide data. A health
+document's latency counts only once a ``/tcm/result`` has been published: before that the
+daemon reports 0 ms for "no frames yet", which is drawn as a gap, not as 0 ms.
+:func:`build_figures` returns the matplotlib figures without writing them.
 
 A plot without data is skipped, not drawn empty: the returned :class:`PlotFiles` (a list
 of the written paths) says in ``skipped`` which plots were left out and why, and the
@@ -37,6 +43,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 
 from ..flightlog import topics
 
@@ -46,6 +53,7 @@ __all__ = [
     "PLOT_NAMES",
     "PlotData",
     "PlotFiles",
+    "build_figures",
     "load_log_data",
     "load_scenario_data",
     "plot_data",
@@ -77,6 +85,7 @@ class TruthSeries:
     moving: np.ndarray  # bool
     azimuth_deg: np.ndarray  # local-level NED, clockwise from north
     elevation_deg: np.ndarray
+    ttc_s: np.ndarray | None = None  # true time to contact; NaN where not closing
 
 
 @dataclass
@@ -90,6 +99,8 @@ class PlotData:
     truth: list[TruthSeries] = field(default_factory=list)
     latency_is_processing_time: bool = False  # replay: no live latency
     t0_us: int | None = None
+    # When the first /tcm/result was published (logs): health latency counts from then on.
+    first_result_us: int | None = None
 
 
 # --------------------------------------------------------------------------------------
@@ -118,6 +129,8 @@ def load_log_data(path: str | Path) -> PlotData:
         if rec.topic == topics.RESULT:
             if isinstance(doc.get("t_capture_us"), int):
                 data.results.append(doc)
+                if data.first_result_us is None or t_us < data.first_result_us:
+                    data.first_result_us = t_us
             else:
                 log.warning("%s: %s at %d us has no t_capture_us (skipped)", path, rec.topic, t_us)
         else:
@@ -166,9 +179,22 @@ def load_scenario_data(scenario: Any, config: Any | None = None) -> PlotData:
                     moving=np.asarray(truth.moving[rows], dtype=bool),
                     azimuth_deg=az,
                     elevation_deg=el,
+                    ttc_s=_true_ttc_s(rel, t_s[truth.frame[rows]]),
                 )
             )
     return data
+
+
+def _true_ttc_s(rel_ned_m: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """True time to contact ``-d/ḋ`` (centre range over closing speed) at each row of one
+    object's truth; NaN where it is not closing. The same rule as the evaluation's
+    ``eval.evaluate.truth_ttc_s`` (which this layer may not import; a test compares them)."""
+    d = np.linalg.norm(rel_ned_m, axis=1)
+    if len(d) < 3:
+        return np.full(len(d), np.nan)
+    ddot = np.gradient(d, t_s)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(ddot < 0, -d / ddot, np.nan)
 
 
 # --------------------------------------------------------------------------------------
@@ -188,7 +214,20 @@ def plot_data(data: PlotData, out_dir: str | Path) -> PlotFiles:
     """Draw every plot that has data; see the module docstring for the list."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    files = PlotFiles()
+    figures, skipped = build_figures(data)
+    files = PlotFiles(skipped=skipped)
+    for name, fig in figures.items():
+        path = out / f"{name}.png"
+        fig.savefig(path)
+        files.append(path)
+    return files
+
+
+def build_figures(data: PlotData) -> tuple[dict[str, Figure], dict[str, str]]:
+    """The figures of every plot that has data (by name, in :data:`PLOT_NAMES` order),
+    and for the others why they were skipped (also logged)."""
+    figures: dict[str, Figure] = {}
+    skipped: dict[str, str] = {}
     t0 = _t0_us(data)
     drawers = {
         "disparity": _plot_disparity,
@@ -203,13 +242,11 @@ def plot_data(data: PlotData, out_dir: str | Path) -> PlotFiles:
         fig = Figure(figsize=(10, 5.5), dpi=DPI, layout="constrained")
         reason = draw(fig, data, t0)
         if reason:
-            files.skipped[name] = reason
+            skipped[name] = reason
             log.info("%s: %s plot skipped: %s", data.source, name, reason)
             continue
-        path = out / f"{name}.png"
-        fig.savefig(path)
-        files.append(path)
-    return files
+        figures[name] = fig
+    return figures, skipped
 
 
 # --------------------------------------------------------------------------------------
@@ -314,6 +351,27 @@ def _state_legend() -> list[Any]:
     ]
 
 
+def _legend(fig: Figure, handles: Sequence[Any] | None = None) -> None:
+    """The figure's legend outside the axes, right of them (constrained layout makes room),
+    so that it never hides data; ``handles`` default to the labelled artists of all axes."""
+    if handles is None:
+        seen: dict[str, Any] = {}
+        for ax in fig.axes:
+            for h, label in zip(*ax.get_legend_handles_labels()):
+                seen.setdefault(label, h)
+        handles = list(seen.values())
+    if handles:
+        fig.legend(handles=handles, loc="outside right upper", fontsize=8)
+
+
+def _integer_ticks(ax: Axes, bars: bool = False) -> None:
+    """Counts (frames) on the y axis: integer ticks only, the axis from 0 to at least 1
+    (points: a little below 0, so that zero counts do not hide in the axis line)."""
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
+    top = max(1.0, ax.get_ylim()[1])
+    ax.set_ylim(0.0 if bars else -0.03 * top, top)
+
+
 def _title(data: PlotData, what: str) -> str:
     return f"{what} — {data.source}"
 
@@ -356,7 +414,7 @@ def _plot_disparity(fig: Figure, data: PlotData, t0: int) -> str:
     ax.set_ylim(bottom=0)
     ax.set_title(_title(data, "TCM disparity per track (dots: state)"))
     ax.grid(alpha=0.3)
-    ax.legend(handles=_state_legend() + handles, fontsize=8, loc="upper right")
+    _legend(fig, _state_legend() + handles)
     return ""
 
 
@@ -381,7 +439,7 @@ def _plot_bearings(fig: Figure, data: PlotData, t0: int) -> str:
     if data.truth:
         handles.append(Line2D([], [], color="k", ls="--", label="truth (per object)"))
     if len(handles) <= 12:
-        axes[0].legend(handles=handles, fontsize=7, loc="upper right")
+        _legend(fig, handles)
     _frame_span(axes[1], data, t0)
     axes[1].set_xlabel(_time_label(data))
     axes[0].set_title(_title(data, "Object bearings (local-level NED)"))
@@ -392,12 +450,30 @@ def _plot_ttc(fig: Figure, data: PlotData, t0: int) -> str:
     tracks = _tracks(data, t0)
     has_ttc = any(np.isfinite(tr.values("ttc_s")).any() for tr in tracks)
     has_cc = any(bool(o.get("collision_course")) for tr in tracks for o in tr.objs)
-    if not (has_ttc or has_cc):
+    truths = [t for t in data.truth if t.ttc_s is not None and np.isfinite(t.ttc_s).any()]
+    if not (has_ttc or has_cc or truths):
         return "no time to contact (no object approaching) and no collision-course frame"
     ax = fig.add_subplot()
+    finite: list[float] = []  # the estimates: they set the scale
+    truth_finite: list[float] = []
+    dashes = ("--", "-.", ":")
+    for k, truth in enumerate(truths):
+        assert truth.ttc_s is not None
+        ax.plot(
+            truth.t_s,
+            truth.ttc_s,
+            color="k",
+            ls=dashes[k % len(dashes)],
+            lw=1.2,
+            alpha=0.8,
+            zorder=1,
+            label=f"truth: object {truth.object_id} (range / closing speed)",
+        )
+        truth_finite += [float(v) for v in truth.ttc_s if math.isfinite(v)]
     for tr in tracks:
         ttc = tr.values("ttc_s")
-        ax.plot(tr.t_s, ttc, ".-", ms=3, lw=0.8, label=tr.label)
+        ax.plot(tr.t_s, ttc, ".-", ms=3, lw=0.8, label=tr.label, zorder=2)
+        finite += [float(v) for v in ttc if math.isfinite(v)]
     cc_t: list[float] = []
     cc_v: list[float] = []
     for tr in tracks:
@@ -413,14 +489,15 @@ def _plot_ttc(fig: Figure, data: PlotData, t0: int) -> str:
     ax.set_xlabel(_time_label(data))
     _frame_span(ax, data, t0)
     ax.set_ylabel("time to contact (s)")
-    finite = [v for tr in tracks for v in tr.values("ttc_s") if math.isfinite(v)]
-    top = max(finite, default=1.0)
-    if top > TTC_AXIS_MAX_S:  # receding or barely closing objects: keep the near ones legible
-        top = TTC_AXIS_MAX_S
+    # The estimates set the scale (truth only when there are none): the true TTC runs off
+    # to infinity where the range stops closing. Receding or barely closing objects: keep
+    # the near ones legible.
+    top = min(max(finite or truth_finite or [1.0]), TTC_AXIS_MAX_S)
+    if max(finite + truth_finite, default=0.0) > top:
         ax.text(
             0.01,
             0.98,
-            f"values above {TTC_AXIS_MAX_S:.0f} s are off the scale",
+            f"values above {top:.0f} s are off the scale",
             transform=ax.transAxes,
             fontsize=7,
             va="top",
@@ -428,7 +505,7 @@ def _plot_ttc(fig: Figure, data: PlotData, t0: int) -> str:
     ax.set_ylim(0, top * 1.05)
     ax.set_title(_title(data, "Time to contact per track"))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    _legend(fig)
     return ""
 
 
@@ -453,7 +530,7 @@ def _plot_egomotion(fig: Figure, data: PlotData, t0: int) -> str:
         ax.grid(alpha=0.3)
     axes[1].set_ylim(0, 1.05)
     _frame_span(axes[1], data, t0)
-    axes[0].legend(fontsize=8, loc="upper right")
+    _legend(fig)
     axes[1].set_xlabel(_time_label(data))
     axes[0].set_title(_title(data, f"Egomotion quality (source: {', '.join(sources)})"))
     return ""
@@ -476,11 +553,15 @@ def _plot_latency(fig: Figure, data: PlotData, t0: int) -> str:
         if not data.latency_is_processing_time:
             what += " — the log has no latency_ms"
     ax = fig.add_subplot()
-    ax.hist(lat, bins=min(60, max(10, lat.size // 10)), color="tab:blue", alpha=0.8)
+    if np.ptp(lat) > 0:
+        ax.hist(lat, bins=min(60, max(10, lat.size // 10)), color="tab:blue", alpha=0.8)
+    else:  # all equal: one bar centred on the value
+        ax.hist(lat, bins=11, range=(lat[0] - 0.5, lat[0] + 0.5), color="tab:blue", alpha=0.8)
     for (name, v), ls in zip(_percentiles(lat), ("-", "--", ":")):
         ax.axvline(v, color="k", ls=ls, lw=1, label=f"{name} = {v:.2f} ms")
     ax.set_xlabel(what)
     ax.set_ylabel("frames")
+    _integer_ticks(ax, bars=True)
     title = (
         "Processing time (replay, not live latency)"
         if data.latency_is_processing_time
@@ -488,7 +569,7 @@ def _plot_latency(fig: Figure, data: PlotData, t0: int) -> str:
     )
     ax.set_title(_title(data, f"{title}, {lat.size} frames, max {lat.max():.2f} ms"))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    _legend(fig)
     return ""
 
 
@@ -507,6 +588,21 @@ def _plot_attitude(fig: Figure, data: PlotData, t0: int) -> str:
     return ""
 
 
+def _health_series(data: PlotData, key: str) -> np.ndarray:
+    """One field of the health documents; latency is NaN (no data, drawn as a gap) until
+    the first /tcm/result was published: before any frame the daemon reports 0 ms."""
+    values = np.array([_f(d.get(key)) for _, d in data.health], dtype=np.float64)
+    if key == "latency_ms":
+        first = data.first_result_us
+        if first is None and data.results:
+            first = min(int(d["t_capture_us"]) for d in data.results)
+        if first is None:  # no frame at all
+            values[:] = np.nan
+        else:
+            values[np.array([tu for tu, _ in data.health]) < first] = np.nan
+    return values
+
+
 def _plot_health(fig: Figure, data: PlotData, t0: int) -> str:
     if not data.health:
         return f"no {topics.HEALTH} documents"
@@ -521,7 +617,12 @@ def _plot_health(fig: Figure, data: PlotData, t0: int) -> str:
         return f"{topics.HEALTH} has none of frame_rate_hz, latency_ms, frames_dropped"
     axes = np.atleast_1d(fig.subplots(len(present), 1, sharex=True))
     for ax, (key, label) in zip(axes, present):
-        ax.plot(t, [_f(d.get(key)) for _, d in data.health], ".-", ms=3, lw=0.8)
+        y = _health_series(data, key)
+        ax.plot(t, y, ".-", ms=3, lw=0.8)
+        if key == "latency_ms" and not np.isfinite(y).any():
+            ax.text(0.5, 0.5, "no frame processed", transform=ax.transAxes, ha="center")
+        if key == "frames_dropped":
+            _integer_ticks(ax)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel(_time_label(data))

@@ -96,14 +96,62 @@ def test_truth_errors(broken: Path) -> None:
         load_scenario(broken)
 
 
-def test_missing_or_corrupt_tlog(broken: Path) -> None:
-    data = (broken / "telemetry.tlog").read_bytes()
-    (broken / "telemetry.tlog").write_bytes(data[:8] + b"\x00" + data[9:])
-    with pytest.raises(ScenarioError, match=r"telemetry\.tlog: record 0 at byte 0"):
+def test_missing_or_unusable_tlog(broken: Path) -> None:
+    (broken / "telemetry.tlog").write_bytes(b"\x00" * 8 + bytes(range(256)) * 4)
+    with pytest.raises(
+        ScenarioError,
+        match=r"telemetry\.tlog: no usable MAVLink record in 1032 bytes \(record 0 at byte 0: "
+        r"byte 0x00 is not a MAVLink magic byte",
+    ):
         load_scenario(broken)
     (broken / "telemetry.tlog").unlink()
     with pytest.raises(ScenarioError, match=r"telemetry\.tlog: missing"):
         load_scenario(broken)
+
+
+def _record_bounds(data: bytes) -> list[tuple[int, int]]:
+    """(start, end) of each record of a well-formed .tlog."""
+    from tcm_companion.io.tlog import iter_tlog
+
+    starts = [r.offset for r in iter_tlog(data)]
+    return list(zip(starts, [*starts[1:], len(data)]))
+
+
+@pytest.mark.parametrize("damage", ["cut", "junk", "middle", "first-record"])
+def test_a_damaged_tlog_keeps_what_is_intact_and_says_what_is_not(
+    broken: Path, damage: str
+) -> None:
+    """A .tlog cut short, with junk appended, or with a corrupt stretch in the middle is
+    read the same way: the intact records kept, the rest in ``warnings`` (file, bytes,
+    where) and in ``tlog_stats`` (issue 13: junk appended refused the whole scenario)."""
+    path = broken / "telemetry.tlog"
+    data = path.read_bytes()
+    full = load_scenario(broken)
+    spans = _record_bounds(data)
+    k = len(spans) // 2
+    start, end = spans[k]
+    if damage == "cut":
+        bad, lost, where = data[: start + 11], len(spans) - k, f"at byte {start}"
+    elif damage == "junk":
+        bad, lost, where = data + b"\x00junk" * 100, 0, f"500 bytes skipped at byte {len(data)}"
+    elif damage == "middle":
+        n = min(30, end - start - 8)  # its frame, not the next record
+        bad = data[: start + 8] + b"\x42" * n + data[start + 8 + n :]
+        lost, where = 1, f"skipped at byte {start}, resynchronised at byte {end}"
+    else:
+        bad = b"\x42" * 9 + data[9:]
+        lost, where = 1, f"{spans[0][1]} bytes skipped at byte 0, resynchronised"
+    path.write_bytes(bad)
+    s = load_scenario(broken)
+    stats = s.tlog_stats
+    assert stats.decoded == full.tlog_stats.decoded - lost
+    assert stats.gaps and stats.bytes_skipped > 0
+    (warning,) = s.warnings
+    assert warning.startswith(f"{path}: {stats.decoded} records kept, received ")
+    assert where in warning
+    if damage == "cut":
+        assert "truncated last record: 11 bytes" in warning
+    assert len(s.telemetry) < len(full.telemetry) or damage == "junk"
 
 
 def test_video_scenario(broken: Path, tmp_path: Path) -> None:

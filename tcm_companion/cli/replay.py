@@ -19,16 +19,22 @@ from .common import (
 
 
 def cmd_replay_log(args: argparse.Namespace) -> int:
-    """A flight log: recompute every processed frame and compare with what was logged."""
+    """A flight log: recompute every processed frame and compare with what was logged.
+
+    A truncated or damaged log replays as far as it is readable and says so (stderr, and
+    in the summary line); ``--check`` fails on it, as on a frame that differs and on a log
+    with no frame to compare."""
+    from ..flightlog.reader import LogReport
     from ..io.outputs import atomic_text
     from ..io.results import ResultsWriter
     from ..replay.log import compare, replay_log
 
     rows = mismatched = frames = 0
     diffs: list[str] = []
+    report = LogReport()
     with atomic_text(args.results, force=args.force) as fh:
         writer = ResultsWriter(fh)
-        for frame in replay_log(args.scenario, args.camera_id):
+        for frame in replay_log(args.scenario, args.camera_id, report):
             writer.write(frame.result)
             frames += 1
             d = compare(frame)
@@ -36,13 +42,46 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
                 mismatched += 1
                 diffs.extend(d)
         rows = writer.rows
+    problems = report.problems()
+    for line in problems:
+        print(f"warning: {line}", file=sys.stderr)
+    incomplete = ""
+    if problems:
+        if len(report.parts) > 1:
+            which = ", ".join(
+                f"part {k + 1} ({p.path.name}) {p.kind}"
+                for k, p in enumerate(report.parts)
+                if p.damaged
+            )
+            incomplete = f"; INCOMPLETE: of {len(report.parts)} parts, {which}"
+        else:
+            part = report.parts[0]
+            last = report.last_time_s
+            upto = f"readable to {last:.2f} s" if last is not None else "no message readable"
+            share = (
+                f", {100.0 * part.read_bytes / part.size_bytes:.1f}% of the file"
+                if part.size_bytes
+                else ""
+            )
+            incomplete = f"; INCOMPLETE: the log is {part.kind} ({upto}{share})"
     print(
         f"{args.scenario}: {frames} frames replayed, {rows} rows -> {args.results}; "
-        f"{frames - mismatched} identical to the flight, {mismatched} differ"
+        f"{frames - mismatched} identical to the flight, {mismatched} differ{incomplete}"
     )
     for line in diffs[:20]:
         print(f"  {line}")
-    return 1 if (args.check and mismatched) else 0
+    if not args.check:
+        return 0
+    failed = []
+    if mismatched:
+        failed.append(f"{mismatched} frame(s) differ from the flight")
+    if problems:
+        failed.append("the log is not whole (see the warnings above)")
+    if not frames:
+        failed.append(f"no processed frame of camera {args.camera_id} to compare")
+    for why in failed:
+        print(f"check failed: {why}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 class _TolerantFrames:
@@ -84,6 +123,47 @@ def _unknown_rows(previous: Any, frame_index: int, t_us: int) -> Any:
     return FrameResult(frame_index, t_us, objects, False, None, {})
 
 
+def _attitude_gaps(
+    no_attitude: list[tuple[int, int]], frame_times_us: Any, attitude_us: list[int]
+) -> list[str]:
+    """Runs of consecutive frames the pipeline had no attitude for, each with its frames,
+    times (seconds from the first frame) and what the telemetry says about it."""
+    t0 = int(frame_times_us[0])
+    runs: list[list[tuple[int, int]]] = []
+    for i, t in no_attitude:
+        if runs and runs[-1][-1][0] == i - 1:
+            runs[-1].append((i, t))
+        else:
+            runs.append([(i, t)])
+    att = sorted(attitude_us)
+
+    def s(t_us: int) -> str:
+        return f"{(t_us - t0) / 1e6:.2f} s"
+
+    out = []
+    for run in runs:
+        (i0, ta), (i1, tb) = run[0], run[-1]
+        frames = (
+            f"frame {i0} ({s(ta)})"
+            if i0 == i1
+            else f"frames {i0}–{i1} ({(ta - t0) / 1e6:.2f}–{s(tb)})"
+        )
+        before = [a for a in att if a <= tb]
+        after = [a for a in att if a > ta]
+        if not att:
+            why = "the .tlog has no attitude"
+        elif not after:
+            why = f"the .tlog's attitude ends at {s(att[-1])}"
+        elif not before:
+            why = f"the .tlog's attitude starts at {s(att[0])}"
+        else:
+            gap_from = max(a for a in att if a <= ta) if any(a <= ta for a in att) else att[0]
+            gap_to = min(after)
+            why = f"no attitude received between {s(gap_from)} and {s(gap_to)}"
+        out.append(f"{frames}: {why}")
+    return out
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from ..io.outputs import atomic_text
     from ..io.results import ResultsWriter
@@ -99,6 +179,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     states: dict[str, int] = {}
     previous = None
     reported = 0
+    no_attitude: list[tuple[int, int]] = []  # readable frames no attitude covered
     with (
         atomic_text(args.results, force=args.force) as fh,
         progress(scenario.n_frames, scenario.name, not args.quiet) as bar,
@@ -110,6 +191,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 result = _unknown_rows(previous, result.frame_index, result.t_us)
             else:
                 previous = result
+                if not result.attitude_ok:
+                    no_attitude.append((result.frame_index, result.t_us))
             writer.write(result)
             for o in result.objects:
                 states[o.state] = states.get(o.state, 0) + 1
@@ -118,13 +201,30 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(f"warning: frame {i} skipped: {why}", file=sys.stderr)
     if len(scenario.unreadable) > 10:
         print(f"warning: ... {len(scenario.unreadable) - 10} more", file=sys.stderr)
+    missing = ""
+    if no_attitude:
+        # the telemetry does not cover these frames (a .tlog that ends early, a damaged
+        # stretch of it): what they saw could not be placed, so the results are partial
+        gaps = _attitude_gaps(
+            no_attitude, scenario.frame_times_us, [a.recv_us for a in scenario.attitude_samples()]
+        )
+        print(
+            f"warning: {len(no_attitude)} of {scenario.n_frames} frames have no attitude"
+            " (objects in them are not placed or classified; times from the first frame):",
+            file=sys.stderr,
+        )
+        for line in gaps[:10]:
+            print(f"warning:   {line}", file=sys.stderr)
+        if len(gaps) > 10:
+            print(f"warning:   ... {len(gaps) - 10} more stretches", file=sys.stderr)
+        missing = f"; {len(no_attitude)} frame(s) without attitude (see the warnings)"
     summary = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "no objects"
     skipped = (
         f"; {len(scenario.unreadable)} unreadable frame(s) skipped" if scenario.unreadable else ""
     )
     print(
         f"{scenario.name}: {scenario.n_frames} frames, {writer.rows} rows ({summary})"
-        f"{skipped} -> {args.results}"
+        f"{skipped}{missing} -> {args.results}"
     )
     return 0
 
@@ -144,7 +244,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument(
         "--check",
         action="store_true",
-        help="flight log: exit 1 unless every replayed frame equals the logged one",
+        help="flight log: exit 1 unless every replayed frame equals the logged one and the"
+        " log is whole (not truncated or damaged)",
     )
     p.add_argument(
         "--camera-id", type=int, default=0, metavar="N", help="flight log: which camera (default 0)"

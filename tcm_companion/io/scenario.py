@@ -3,6 +3,12 @@
 Every check that fails raises :class:`ScenarioError` with the file, the line (where the
 file has lines) and the problem, so a hand-built scenario can be fixed from the message
 alone. Frames are read lazily, one at a time, in order.
+
+Damaged data is kept where intact and reported, not refused: a ``.tlog`` cut short, with
+junk appended or with a corrupt stretch inside is read around the damage
+(:mod:`.tlog`), and what was skipped, where, and how many records were kept is one of
+:attr:`Scenario.warnings` (with ``tlog_stats``); only a ``.tlog`` with nothing usable is an
+error. Unreadable frames: :meth:`Scenario.iter_frames_tolerant`.
 """
 
 from __future__ import annotations
@@ -245,8 +251,9 @@ def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
         warnings.append(f"{tlog_path}: no HEARTBEAT")
     if not any(isinstance(s, PositionSample) for s in telemetry):
         warnings.append(f"{tlog_path}: no LOCAL_POSITION_NED (autopilot egomotion unavailable)")
-    if stats.skipped or stats.truncated_tail_bytes or stats.time_backwards:
-        warnings.append(f"{tlog_path}: {stats.summary()}")
+    if stats.damaged or stats.time_backwards:
+        # kept what is intact; say what was not, where, and when (from the first frame)
+        warnings.append(f"{tlog_path}: {stats.summary(int(times[0]))}")
 
     truth_path = root / "truth.csv"
     truth = _read_truth_csv(truth_path, len(times)) if truth_path.is_file() else None

@@ -18,6 +18,10 @@ bundled OpenBLAS picks its kernels by CPU (or ``OPENBLAS_CORETYPE``), numpy pick
 loops by CPU, and other numpy/OpenCV releases round differently. :func:`compare` is
 bit-exact by default; ``rel_tol`` accepts such rounding differences in the disparity
 (states and tracks must still agree exactly). ``docs/logging.md`` says which is which.
+
+A truncated or damaged log (a killed daemon, a copy taken while it was written) replays as
+far as it is readable; what was not is in the :class:`~tcm_companion.flightlog.reader.LogReport`
+given to :func:`replay_log` (``replay --check`` fails on it).
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -40,6 +44,9 @@ from ..core.pipeline import FrameResult
 from ..flightlog import topics as log_topics
 from ..mavlink.endpoint import CompanionEndpoint
 from ..service.companion import Companion
+
+if TYPE_CHECKING:
+    from ..flightlog.reader import LogReport
 
 
 class LogReplayError(ValueError):
@@ -53,10 +60,15 @@ class ReplayedFrame:
 
 
 def _metadata(path: Path) -> dict[str, str]:
-    from ..flightlog.reader import read_metadata
+    from ..flightlog.reader import check_log, read_metadata
 
     meta = read_metadata(path)
     if not meta:
+        damaged = check_log(path).problems()
+        if damaged:  # cut or damaged before (or inside) its first record
+            raise LogReplayError(
+                f"{path}: no tcm-companion metadata record readable: " + "; ".join(damaged)
+            )
         raise LogReplayError(f"{path}: no tcm-companion metadata record (not a flight log?)")
     return meta
 
@@ -128,11 +140,19 @@ def _cameras(meta: dict[str, str], where: Path) -> tuple[list[CameraModel], list
     return models, names
 
 
-def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
-    """Yield every processed frame of camera ``camera_id`` of the log, recomputed."""
-    from ..flightlog.reader import decode_image, decode_json, read_log
+def replay_log(
+    path: str | Path, camera_id: int = 0, report: LogReport | None = None
+) -> Iterator[ReplayedFrame]:
+    """Yield every processed frame of camera ``camera_id`` of the log, recomputed.
+
+    A truncated or damaged part is replayed as far as it is readable, then the next part
+    (a frame processed there whose image was lost with the damaged tail is skipped);
+    ``report`` says, once the iterator is exhausted, which parts were and how much of each
+    was read (:meth:`~tcm_companion.flightlog.reader.LogReport.problems`)."""
+    from ..flightlog.reader import LogReport, decode_image, decode_json, read_log
 
     p = Path(path)
+    report = report if report is not None else LogReport()
     meta = _metadata(p)
     config, params = log_config(p)
     models, names = _cameras(meta, p)
@@ -145,7 +165,7 @@ def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
     images: dict[int, np.ndarray] = {}
     image_topic = log_topics.camera_image(camera_id)
     topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT}
-    for rec in read_log(p, topics):
+    for rec in read_log(p, topics, report):
         t_mono_us = rec.publish_time_ns // 1000
         if companion is None:
             companion = Companion(
@@ -166,6 +186,8 @@ def replay_log(path: str | Path, camera_id: int = 0) -> Iterator[ReplayedFrame]:
             for old in [t for t in images if t < t_capture]:
                 del images[old]
             if frame_image is None:
+                if any(part.damaged for part in report.parts[:-1]):
+                    continue  # its image was in the lost tail of a damaged part (reported)
                 raise LogReplayError(
                     f"{p}: frame at {t_capture} us was processed but is not in the log"
                 )

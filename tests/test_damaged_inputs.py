@@ -1,0 +1,247 @@
+"""Damaged input through ``tcm-companion replay``: nothing lost, nothing silently partial
+(issue 13).
+
+- A flight log cut short (a killed daemon, a copy taken while it was written) replays as
+  far as it is readable, says that it is truncated, where it ends and how much of the file
+  was readable; ``--check`` fails on it. A log of several parts names the damaged part.
+- A ``.tlog`` cut short, with junk appended or with a corrupt stretch in its middle: the
+  intact records kept, the rest reported (bytes skipped, where, records kept); a ``.tlog``
+  with nothing usable is still an error.
+- A scenario whose telemetry ends before its frames: the summary says which frames had no
+  attitude and from when (exit 0, but not a summary that looks complete).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from tcm_companion import cli
+from tcm_companion.flightlog.reader import check_log, part_name
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "tests" / "data" / "logs" / "sitl-t90.mcap"
+EXAMPLE = ROOT / "tests" / "data" / "examples" / "EX-T90"
+
+
+def replay(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    capsys.readouterr()
+    rc = cli.main(["replay", *args, "-q"])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+# ---------------------------------------------------------------------------------------
+# Flight logs
+
+
+@pytest.mark.parametrize("fraction", [0.1, 0.5, 0.97])
+def test_a_truncated_log_says_so_and_fails_the_check(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], fraction: float
+) -> None:
+    """It replayed with exit 0 and no word of it ("0 frames replayed", exit 0)."""
+    data = REFERENCE.read_bytes()
+    size = int(len(data) * fraction)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:size])
+    (part,) = check_log(cut).parts
+    rc, out, err = replay(capsys, str(cut), "--results", str(tmp_path / "r.csv"), "--check")
+    assert rc == 1, (out, err)
+    assert f"warning: {cut}: truncated: {part.read_bytes} of {size} bytes" in err
+    assert re.search(r"\d+ messages readable, the last \d+\.\d\d s into the log", err), err
+    assert "check failed: the log is not whole" in err
+    assert "INCOMPLETE: the log is truncated (readable to " in out
+    assert f"{100.0 * part.read_bytes / size:.1f}% of the file" in out
+
+
+def test_without_check_a_truncated_log_replays_what_is_readable_with_exit_0(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = REFERENCE.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    rc, out, err = replay(capsys, str(cut), "--results", str(tmp_path / "r.csv"))
+    assert rc == 0
+    assert "truncated" in err and "INCOMPLETE" in out
+    frames = int(re.search(r"(\d+) frames replayed", out).group(1))  # type: ignore[union-attr]
+    assert frames > 0 and "0 differ" in out
+    with open(tmp_path / "r.csv", newline="") as fh:
+        assert len({row["frame"] for row in csv.DictReader(fh)}) == frames
+
+
+def test_a_log_cut_before_its_metadata_is_an_error_that_says_truncated(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(REFERENCE.read_bytes()[:40])
+    rc, _, err = replay(capsys, str(cut), "--results", str(tmp_path / "r.csv"), "--check")
+    assert rc == 2
+    assert "no tcm-companion metadata record readable" in err and "truncated: " in err
+    assert not (tmp_path / "r.csv").exists()
+
+
+def test_a_whole_log_passes_the_check_without_warnings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Short but whole (it has its footer): fine."""
+    rc, out, err = replay(capsys, str(REFERENCE), "--results", str(tmp_path / "r.csv"), "--check")
+    assert rc == 0, (out, err)
+    assert "warning" not in err and "INCOMPLETE" not in out
+
+
+def split_log(src: Path, dst: Path, n: int) -> list[Path]:
+    """``src`` rewritten as ``n`` parts of a log directory (each with the metadata, the
+    messages in their order, 128 KiB chunks), as the writer's rotation would leave it."""
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import Writer
+
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    metadata: list[Metadata] = []
+    messages: list[Message] = []
+    with open(src, "rb") as fh:
+        for rec in StreamReader(fh).records:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                metadata.append(rec)
+            elif isinstance(rec, Message):
+                messages.append(rec)
+    dst.mkdir()
+    per = math.ceil(len(messages) / n)
+    paths = []
+    for k in range(n):
+        path = dst / part_name("20260101-120000", k)
+        with open(path, "wb") as fh:
+            w = Writer(fh, chunk_size=128 * 1024)
+            w.start()
+            for m in metadata:
+                w.add_metadata(m.name, m.metadata)
+            ids: dict[int, int] = {}
+            for msg in messages[k * per : (k + 1) * per]:
+                if msg.channel_id not in ids:
+                    ch = channels[msg.channel_id]
+                    sid = 0
+                    if ch.schema_id:
+                        s = schemas[ch.schema_id]
+                        sid = w.register_schema(s.name, s.encoding, s.data)
+                    ids[msg.channel_id] = w.register_channel(
+                        ch.topic, ch.message_encoding, sid, ch.metadata
+                    )
+                w.add_message(
+                    ids[msg.channel_id], msg.log_time, msg.data, msg.publish_time, msg.sequence
+                )
+            w.finish()
+        paths.append(path)
+    return paths
+
+
+def test_a_log_of_several_parts_names_the_damaged_part(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    parts = split_log(REFERENCE, tmp_path / "log", 3)
+    assert check_log(tmp_path / "log").problems() == []
+    data = parts[1].read_bytes()
+    parts[1].write_bytes(data[: len(data) // 2])
+    rc, out, err = replay(
+        capsys, str(tmp_path / "log"), "--results", str(tmp_path / "r.csv"), "--check"
+    )
+    assert rc == 1, (out, err)
+    assert f"warning: part 2 of 3: {parts[1]}: truncated: " in err
+    assert f"INCOMPLETE: of 3 parts, part 2 ({parts[1].name}) truncated" in out
+    assert parts[0].name not in err and parts[2].name not in err
+    # the parts after the damage are replayed too (a frame whose image was lost is skipped)
+    frames = int(re.search(r"(\d+) frames replayed", out).group(1))  # type: ignore[union-attr]
+    assert 0 < frames < 70
+
+
+# ---------------------------------------------------------------------------------------
+# Scenarios and their .tlog
+
+
+@pytest.fixture()
+def scenario(tmp_path: Path) -> Path:
+    sc = tmp_path / "sc"
+    shutil.copytree(EXAMPLE, sc)
+    for p in [sc, *sc.rglob("*")]:
+        p.chmod(0o755 if p.is_dir() else 0o644)
+    return sc
+
+
+def test_frames_the_telemetry_does_not_cover_are_named_in_the_summary(
+    scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A .tlog cut short gave rows for only the frames it covered, silently."""
+    from tcm_companion.config import AppConfig
+    from tcm_companion.io.scenario import load_scenario
+    from tcm_companion.replay.scenario import run_replay
+
+    tlog = scenario / "telemetry.tlog"
+    data = tlog.read_bytes()
+    tlog.write_bytes(data[: len(data) * 45 // 100])
+    sc = load_scenario(scenario)
+    without = [r.frame_index for r in run_replay(sc, AppConfig()) if not r.attitude_ok]
+    assert without and without == list(range(without[0], sc.n_frames))  # the tail
+    t0 = sc.frame_times_us[0]
+    ends = (sc.attitude_samples()[-1].recv_us - t0) / 1e6
+    first, last = (sc.frame_times_us[without[0]] - t0) / 1e6, (sc.frame_times_us[-1] - t0) / 1e6
+
+    rc, out, err = replay(capsys, str(scenario), "--results", str(tmp_path / "r.csv"))
+    assert rc == 0
+    n = len(without)
+    assert f"; {n} frame(s) without attitude (see the warnings) -> " in out
+    assert f"warning: {n} of {sc.n_frames} frames have no attitude" in err
+    assert (
+        f"frames {without[0]}–{sc.n_frames - 1} ({first:.2f}–{last:.2f} s): the .tlog's"
+        f" attitude ends at {ends:.2f} s" in err
+    )
+    assert "truncated last record" in err  # and the .tlog's own warning
+
+
+def test_a_whole_scenario_has_no_attitude_warning(
+    scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rc, out, err = replay(capsys, str(scenario), "--results", str(tmp_path / "r.csv"))
+    assert rc == 0 and err == "" and "without attitude" not in out
+
+
+@pytest.mark.parametrize("damage", ["junk", "middle"])
+def test_a_tlog_with_junk_or_a_corrupt_middle_replays_and_says_what_was_skipped(
+    scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
+) -> None:
+    """Junk appended refused the whole scenario while a cut only warned: now both (and a
+    corrupt stretch in the middle) keep what is intact and report the rest."""
+    tlog = scenario / "telemetry.tlog"
+    data = tlog.read_bytes()
+    if damage == "junk":
+        tlog.write_bytes(data + b"appended junk\n" * 50)
+        expect = f"700 bytes skipped at byte {len(data)}, to the end of the file"
+    else:
+        mid = len(data) // 2
+        tlog.write_bytes(data[:mid] + bytes(range(256)) * 2 + data[mid + 512 :])
+        expect = "bytes skipped at byte "
+    rc, out, err = replay(capsys, str(scenario), "--results", str(tmp_path / "r.csv"))
+    assert rc == 0, err
+    assert f"warning: {tlog}: " in err and " records kept, received " in err
+    assert expect in err
+    if damage == "middle":
+        assert "resynchronised at byte " in err
+    assert " rows (" in out
+
+
+def test_a_tlog_with_nothing_usable_is_refused_naming_file_and_offset(
+    scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    tlog = scenario / "telemetry.tlog"
+    tlog.write_bytes(b"not a tlog at all\n" * 100)
+    rc, _, err = replay(capsys, str(scenario), "--results", str(tmp_path / "r.csv"))
+    assert rc == 2
+    assert f"error: {tlog}: no usable MAVLink record in 1800 bytes (record 0 at byte 0: " in err

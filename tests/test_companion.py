@@ -62,6 +62,7 @@ class Driver:
         scenario: SimulatedScenario,
         frames: list[np.ndarray],
         config: DaemonConfig | None = None,
+        **companion_kw: Any,
     ) -> None:
         self.scenario = scenario
         self.frames = frames
@@ -69,7 +70,7 @@ class Driver:
         t0 = int(scenario.frame_times_us[0]) - 500_000
         self.endpoint = CompanionEndpoint(now_us=t0)
         self.companion = Companion(
-            [CAMERA], PipelineConfig(), self.endpoint, t0, config or DaemonConfig()
+            [CAMERA], PipelineConfig(), self.endpoint, t0, config or DaemonConfig(), **companion_kw
         )
         self.now = t0
         self.j = 0
@@ -127,6 +128,14 @@ class Driver:
         self.keep = lambda s: True
         self.nan_attitude = False
 
+    def run_frames(self, indices: list[int]) -> None:
+        """Like :meth:`run`, for any subset of the frames (a slower or jittering camera)."""
+        for i in indices:
+            t = int(self.scenario.frame_times_us[i])
+            self.advance(t + 1_000)
+            self.companion.on_frame(0, self.frames[i], t, t + 1_000)
+            self.advance(t + 1_000 + self.companion.config.attitude_wait_max_us)
+
     def statuses(self) -> list[Any]:
         return [m for m in self.sent if m.get_type() == "TCM_OBJECT_STATUS"]
 
@@ -156,6 +165,8 @@ def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
     # The health check ran once a second, on its own deadlines.
     assert 4 <= len(drv.health_checks()) <= 6
     assert "fps" in drv.health_checks()[-1].status_line
+    # No frame's output was reported written (frame_sent): no latency yet, and no "nan".
+    assert all("latency n/a" in h.status_line for h in drv.health_checks())
 
 
 def test_a_frame_ahead_of_the_attitude_waits_for_the_next_sample(flight: Any) -> None:
@@ -433,3 +444,57 @@ def test_attitude_time_mapping_uses_timesync_and_removes_the_link_latency() -> N
         endpoint.timesync.add_reply(sent, (sent + 1_000 - offset + 9_000_000) * 1000, sent + 2_000)
     assert clock.offset_us == pytest.approx(offset + latency)
     assert not clock.used_timesync
+
+
+def jittering(n_frames: int, seed: int = 1) -> list[int]:
+    """Frame indices of a camera at 6-12 Hz, jittering: 2 to 4 of the 25 Hz frames apart
+    (80-160 ms), as the simulated camera ran on a loaded machine."""
+    rng = np.random.default_rng(seed)
+    out, i = [], 0
+    while i < n_frames:
+        out.append(i)
+        i += int(rng.integers(2, 5))
+    return out
+
+
+def test_a_slow_jittering_camera_is_one_fault_until_it_clears(flight: Any) -> None:
+    """A camera at 6-12 Hz (25 expected) is slow the whole flight, its measured rate
+    moving from tick to tick: one fault, one STATUSTEXT, its objects cleared once; the
+    status line names the current rate and otherwise shows the objects being decided."""
+    scenario, frames = flight
+    drv = Driver(scenario, frames)
+    drv.run_frames(jittering(len(frames)))
+    drv.advance(drv.now + 300_000)  # the last STATUSTEXTs out of their queue
+    comp = drv.companion
+    checks = drv.health_checks()
+    slow = [h for h in checks if "camera0 slow" in h.status_line]
+    assert len(slow) >= 3
+    # The measured rate moved while the condition held (what used to count as new faults).
+    rates = {h.problems["camera0"] for h in slow}
+    assert len(rates) >= 2, rates
+    assert comp.stats.faults["camera0 slow"] == 1, dict(comp.stats.faults)
+    assert [c for h in checks for c in h.changes if c[0] == "camera0"] == [
+        ("camera0", slow[0].problems["camera0"])
+    ]
+    texts = [t for t in drv.texts() if "camera0 slow" in t]
+    assert len(texts) == 1 and texts[0].endswith("Hz, expected 25)"), texts
+    # Cleared once, at the onset; the ticks after show the objects being decided.
+    empty = [h for h in slow[1:] if h.status_line.startswith("objects 0 ")]
+    assert empty == [], [h.status_line for h in slow]
+
+
+def test_a_camera_is_slow_against_its_own_frame_rate(flight: Any) -> None:
+    """A 10 Hz camera ([camera] fps = 10) delivering 6-12 Hz is not slow; the same
+    frames from a camera set to 25 Hz are."""
+    scenario, frames = flight
+    ten = Driver(scenario, frames, camera_rates_hz=[10.0])
+    ten.run_frames(jittering(len(frames)))
+    checks = ten.health_checks()
+    assert len(checks) >= 4
+    assert all("inputs OK" in h.status_line or "slow" not in h.status_line for h in checks)
+    assert not any(k.startswith("camera0") for k in ten.companion.stats.faults)
+    assert ten.companion.inputs.monitors["camera0"].spec.expected_hz == 10.0
+    with pytest.raises(ValueError, match="camera rate"):
+        Companion([CAMERA], PipelineConfig(), CompanionEndpoint(now_us=0), 0, camera_rates_hz=[])
+    with pytest.raises(ValueError, match="positive"):
+        Companion([CAMERA], PipelineConfig(), CompanionEndpoint(now_us=0), 0, camera_rates_hz=[0.0])

@@ -74,6 +74,27 @@ def test_without_check_a_truncated_log_replays_what_is_readable_with_exit_0(
         assert len({row["frame"] for row in csv.DictReader(fh)}) == frames
 
 
+def test_exporting_a_truncated_log_says_the_scenario_is_partial(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``export`` of a cut log wrote a scenario of what was readable, without a word."""
+    data = REFERENCE.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.7)])
+    capsys.readouterr()
+    rc = cli.main(["export", str(cut), "--scenario", str(tmp_path / "sc")])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    assert f"warning: {cut}: truncated: " in err and "(exported what was readable)" in err
+    frames = int(re.search(r": (\d+) frames", out).group(1))  # type: ignore[union-attr]
+    assert 0 < frames == len(list((tmp_path / "sc" / "frames").iterdir()))
+    capsys.readouterr()
+    cli.main(["export", str(REFERENCE), "--scenario", str(tmp_path / "whole")])
+    whole_out, whole_err = capsys.readouterr()
+    assert "truncated" not in whole_err
+    assert frames < int(re.search(r": (\d+) frames", whole_out).group(1))  # type: ignore[union-attr]
+
+
 def test_a_log_cut_before_its_metadata_is_an_error_that_says_truncated(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -74,3 +74,50 @@ def test_bad_specs_are_refused() -> None:
         InputSpec("x", 0.0, 1)
     with pytest.raises(ValueError, match="unique"):
         Inputs([InputSpec("x", 1, 1), InputSpec("x", 1, 1)], T0)
+
+
+def test_a_slow_input_is_one_condition_while_its_rate_moves() -> None:
+    """The problem text follows the measured rate; the change (what is counted, announced
+    and clears objects) is reported once, and again only when it clears."""
+    inputs = Inputs([InputSpec("camera0", 25.0, 500_000)], T0)
+    t = feed(inputs, "camera0", 25.0, T0, T0 + 2_500_000)
+    assert inputs.changes(t) == []
+    seen: list[str] = []
+    reported: list[tuple[str, str]] = []
+    t = feed(inputs, "camera0", 8.0, t, t + 2_000_000)  # the window is all slow now
+    for hz in (7.0, 9.0, 11.0, 8.0, 6.0, 12.0):  # then a second each, jittering
+        t = feed(inputs, "camera0", hz, t, t + 1_000_000)
+        seen.append(inputs.status(t)["camera0"].problem)
+        reported += inputs.changes(t)
+    assert len(set(seen)) >= 3  # the number moves ...
+    assert reported == [("camera0", seen[0])]  # ... the condition is reported once
+    assert all(p.startswith("camera0 slow (") and p.endswith(" Hz, expected 25)") for p in seen)
+    assert inputs.condition("camera0") == "slow"
+    t = feed(inputs, "camera0", 25.0, t, t + 2_500_000)
+    assert inputs.changes(t) == [("camera0", "")] and inputs.condition("camera0") == ""
+
+
+def test_a_condition_that_changes_kind_is_reported() -> None:
+    inputs = Inputs([InputSpec("camera0", 25.0, 500_000)], T0)
+    t = feed(inputs, "camera0", 8.0, T0, T0 + 3_000_000)
+    assert inputs.changes(t) == [("camera0", inputs.status(t)["camera0"].problem)]
+    assert inputs.changes(t + 600_000) == [("camera0", "camera0 stale")]  # worse: new
+
+
+def test_an_input_that_comes_back_is_not_slow_on_its_way_back() -> None:
+    """Position appears 3 s after start (the EKF origin), a camera comes back after 1.5 s
+    away: each is judged on its rate only a window after it (re)appeared, so the
+    condition goes missing/stale -> OK, not -> "slow (0 Hz)" -> OK (a second fault)."""
+    inputs = Inputs([InputSpec("position", 10.0, 1_000_000), InputSpec("camera0", 25, 500_000)], T0)
+    feed(inputs, "camera0", 25.0, T0, T0 + 3_000_000)
+    assert inputs.changes(T0 + 1_000_000) == [("position", "position missing")]
+    reported: list[tuple[str, str]] = []
+    t = T0 + 3_000_000
+    # Position from 3 s on; the camera away from 3 s to 4.5 s, then back.
+    for k in range(1, 9):
+        now = t + k * 1_000_000
+        feed(inputs, "position", 10.0, now - 1_000_000, now)
+        if now > T0 + 4_500_000:
+            feed(inputs, "camera0", 25.0, max(now - 1_000_000, T0 + 4_500_000), now)
+        reported += inputs.changes(now)
+    assert reported == [("position", ""), ("camera0", "camera0 stale"), ("camera0", "")]

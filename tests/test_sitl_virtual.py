@@ -117,6 +117,65 @@ def test_a_run_that_decides_nothing_says_so_and_fails(tmp_path: Path) -> None:
     assert not report.ok
 
 
+def test_a_run_that_processes_nothing_says_so_without_nan(tmp_path: Path) -> None:
+    """A camera that delivers only empty images: every frame rejected, nothing processed.
+    The live line and the summary say "n/a" and "no decision", never "nan"."""
+    from tcm_companion.io.cameras.base import FrameSource
+    from tcm_companion.sim.scene.truth_camera import SimulatedCamera
+
+    class Blank(FrameSource):
+        def __init__(self, inner: SimulatedCamera) -> None:
+            super().__init__(inner.name, inner.width, inner.height)
+            self.inner = inner
+
+        def open(self) -> None:
+            self.inner.open()
+
+        def read(self) -> Any:
+            _, t = self.inner.read()
+            return None, t
+
+        def close(self) -> None:
+            self.inner.close()
+
+    lines: list[str] = []
+    report = run_sitl_virtual(
+        AppConfig(),
+        duration_s=3.0,
+        state_dir=str(tmp_path),
+        on_status=lines.append,
+        camera_factory=lambda mock, model, **kw: Blank(SimulatedCamera.for_mock(model, mock, **kw)),
+    )
+    text = "\n".join(report.lines())
+    assert report.summary.processed == 0 and report.summary.rejected > 0
+    assert lines and all("latency n/a" in x and "nan" not in x for x in lines), lines
+    assert "nan" not in text, text
+    assert "latency capture->MAVLink: n/a" in text and "no decision" in text
+    assert "states: none" in text
+    assert "no frame was processed" in report.failures
+
+
+def test_a_camera_set_to_10_fps_is_expected_at_10(tmp_path: Path) -> None:
+    """[camera] fps reaches the simulated camera and the companion's input check: a
+    10 Hz camera is not "slow" (it was, against a hard-coded 25 Hz)."""
+    config = AppConfig()
+    config = dataclasses.replace(
+        config,
+        camera=dataclasses.replace(
+            config.camera, source=dataclasses.replace(config.camera.source, fps=10.0)
+        ),
+    )
+    lines: list[str] = []
+    report = run_sitl_virtual(
+        config, duration_s=4.0, state_dir=str(tmp_path), on_status=lines.append
+    )
+    s = report.summary
+    assert 4.0 * 10 - 2 <= s.processed <= 4.0 * 10 + 1  # the camera ran at 10 fps
+    assert not [k for k in s.faults if k.startswith("camera0")], s.faults
+    assert not [x for x in lines if "slow" in x], lines
+    assert report.ok, report.lines()
+
+
 def test_run_sitl_takes_the_virtual_clock_and_a_mock_of_its_own(tmp_path: Path) -> None:
     """A mock passed in sets the start of the simulated clock (any start works)."""
     start = 5_000_000_000

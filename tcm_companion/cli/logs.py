@@ -21,8 +21,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..logtools.convert import log_to_scenario
 
     with atomic_path(args.scenario, force=args.force, is_dir=True) as tmp:
-        log_to_scenario(args.log, tmp, camera_id=args.camera_id)
-    print(f"{args.log} -> {args.scenario}")
+        summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id)
+    for w in summary.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"{args.log} -> {args.scenario}: {summary.frames} frames")
     return 0
 
 

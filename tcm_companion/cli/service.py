@@ -3,7 +3,9 @@ and its configuration.
 
 ``run`` is the service systemd starts: it loads the configuration (CLI ``--set`` >
 environment > file > defaults), builds the camera source, and runs the daemon on uvloop
-until SIGTERM/SIGINT, notifying systemd (READY, STATUS, WATCHDOG, STOPPING). With
+until SIGTERM (exit 0) or SIGINT (exit 130), notifying systemd (READY, STATUS, WATCHDOG,
+STOPPING). ``sitl`` cut short by a signal exits 128 + the signal (docs/daemon.md,
+"Stopping and exit status"). With
 ``[camera] source = "sim"`` there is no vehicle to look at, so ``run`` flies the mock
 autopilot in the same process (SITL) and goes on until stopped.
 
@@ -17,12 +19,14 @@ import argparse
 import contextlib
 import dataclasses
 import logging
+import math
 import os
 import signal
 import sys
-from collections.abc import Callable, Coroutine
+import threading
+from collections.abc import Callable, Coroutine, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from ..sim.scene.names import SCENARIO_NAMES
 from .common import (
@@ -38,8 +42,11 @@ if TYPE_CHECKING:
     import asyncio
 
     from ..config import AppConfig
+    from ..service.plumbing import DaemonSummary
+    from ..sitl.mock import SitlReport
 
 log = logging.getLogger("tcm_companion")
+_T = TypeVar("_T")
 
 
 def state_dir_for(config: AppConfig) -> Path:
@@ -54,7 +61,7 @@ def state_dir_for(config: AppConfig) -> Path:
     return base / "tcm-companion"
 
 
-def _run_loop(main: Callable[[], Coroutine[Any, Any, int]]) -> int:
+def _run_loop(main: Callable[[], Coroutine[Any, Any, _T]]) -> _T:
     """Run ``main`` on uvloop (the asyncio loop written in libuv), asyncio if missing."""
     try:
         import uvloop
@@ -65,40 +72,226 @@ def _run_loop(main: Callable[[], Coroutine[Any, Any, int]]) -> int:
     return uvloop.run(main())
 
 
-def _install_signals(stop: asyncio.Event) -> None:
-    import asyncio
+class _Signals:
+    """SIGINT and SIGTERM stop the run (``stop``); :attr:`received` says which came first.
 
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, stop.set)
+    Exit status of a run a signal cut short (:meth:`exit_status`): 128 + the signal, the
+    shell's convention (130 for SIGINT, 143 for SIGTERM) — except SIGTERM for ``run``,
+    which is how systemd stops the service: that is a normal end (0).
+    """
+
+    HANDLED = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.received: signal.Signals | None = None
+
+    def _got(self, sig: signal.Signals, stop: Callable[[], object]) -> None:
+        if self.received is None:
+            self.received = sig
+        stop()
+
+    def install(self, stop: asyncio.Event) -> None:
+        """On the running event loop (real time)."""
+        import asyncio
+
+        loop = asyncio.get_running_loop()
+        for sig in self.HANDLED:
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.add_signal_handler(sig, self._got, sig, stop.set)
+
+    @contextlib.contextmanager
+    def installed(self, stop: Callable[[], object]) -> Iterator[None]:
+        """As Python signal handlers while the block runs (virtual time: no event loop)."""
+        previous: dict[signal.Signals, Any] = {}
+        for sig in self.HANDLED:
+
+            def handler(signum: int, frame: Any, sig: signal.Signals = sig) -> None:
+                self._got(sig, stop)
+
+            with contextlib.suppress(ValueError):  # not the main thread
+                previous[sig] = signal.signal(sig, handler)
+        try:
+            yield
+        finally:
+            for sig, old in previous.items():
+                signal.signal(sig, old)
+
+    def stopped_by(self, stopped_early: bool) -> str:
+        """What ended a run: its signal's name if a signal cut it short ("" if not)."""
+        return self.received.name if stopped_early and self.received is not None else ""
+
+    @staticmethod
+    def exit_status(ok: bool, stopped_by: str, *, service: bool = False) -> int:
+        """0 (1 if the run failed); 128 + the signal that cut it short (see the class)."""
+        if stopped_by in ("SIGINT", "SIGTERM") and not (service and stopped_by == "SIGTERM"):
+            return 128 + int(signal.Signals[stopped_by])
+        return 0 if ok else 1
 
 
 class _StatusPrinter:
-    """The live one-line status: rewritten in place on a terminal, a line every 5 s else."""
+    """The live one-line status on ``stream`` (stderr).
 
-    def __init__(self, stream: Any = sys.stderr, every: int = 5) -> None:
-        self.stream = stream
-        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+    On a terminal the line is rewritten in place, cut to the terminal's width, and log
+    records never land on it: while it is shown (:meth:`logs_above`), the root logger's
+    handlers that write to the same terminal are wrapped so that each record clears the
+    line, is written, and the line is drawn again below it (one lock for both, as
+    records come from the camera and flight-log threads too). Not a terminal (a pipe,
+    the journal): a plain line every ``every`` status updates (once a second: every N
+    s), and log records go out as they come, whole lines either way.
+    """
+
+    def __init__(self, stream: Any = None, every: int = 5) -> None:
+        if every < 1:
+            raise ValueError(f"every must be >= 1 (no printer at all for no status), got {every}")
+        self.stream = sys.stderr if stream is None else stream
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.every = every
         self.n = 0
+        self.lock = threading.RLock()
+        self.shown = ""  # the line on the terminal now ("" none)
+        self._wrapped: list[tuple[logging.Handler, _AboveStatusLine]] = []
+
+    def _width(self) -> int:
+        try:
+            columns = os.get_terminal_size(self.stream.fileno()).columns
+        except (AttributeError, OSError, ValueError):
+            columns = 0
+        return max(20, columns - 1) if columns > 0 else 199  # 0: the size is not known
 
     def __call__(self, line: str) -> None:
-        self.n += 1
+        with self.lock:
+            self.n += 1
+            if self.tty:
+                # One physical row: a wrapped line could not be cleared by \r.
+                self.shown = line[: self._width()]
+                self.stream.write("\r\x1b[2K" + self.shown)
+                self.stream.flush()
+            elif (self.n - 1) % self.every == 0:
+                self.stream.write(line + "\n")
+                self.stream.flush()
+
+    def erase(self) -> None:
+        """Clear the line (the cursor back at its start); :meth:`redraw` puts it back."""
+        with self.lock:
+            if self.tty and self.shown:
+                self.stream.write("\r\x1b[2K")
+                self.stream.flush()
+
+    def redraw(self) -> None:
+        with self.lock:
+            if self.tty and self.shown:
+                self.stream.write(self.shown)
+                self.stream.flush()
+
+    def _same_stream(self, handler: logging.Handler) -> bool:
+        stream = getattr(handler, "stream", None)
+        if stream is None:
+            return False
+        if stream is self.stream:
+            return True
+        try:
+            return os.path.samestat(os.fstat(stream.fileno()), os.fstat(self.stream.fileno()))
+        except (AttributeError, OSError, ValueError):
+            return False
+
+    @contextlib.contextmanager
+    def logs_above(self) -> Iterator[_StatusPrinter]:
+        """While the block runs, log records go above the live line (a terminal only);
+        at its end the line is left as it was, with a new line after it."""
+        root = logging.getLogger()
         if self.tty:
-            self.stream.write("\r\x1b[2K" + line[:200])
-            self.stream.flush()
-        elif self.n % self.every == 1 or self.every == 1:
-            print(line, file=self.stream, flush=True)
+            for i, h in enumerate(root.handlers):  # in place: the order stays
+                if isinstance(h, logging.StreamHandler) and self._same_stream(h):
+                    above = _AboveStatusLine(h, self)
+                    root.handlers[i] = above
+                    self._wrapped.append((h, above))
+        try:
+            yield self
+        finally:
+            for inner, wrapper in self._wrapped:
+                if wrapper in root.handlers:
+                    root.handlers[root.handlers.index(wrapper)] = inner
+            self._wrapped.clear()
+            self.done()
 
     def done(self) -> None:
-        if self.tty and self.n:
-            self.stream.write("\n")
-            self.stream.flush()
+        with self.lock:
+            if self.tty and self.shown:
+                self.stream.write("\n")
+                self.stream.flush()
+            self.shown = ""
+
+
+class _AboveStatusLine(logging.Handler):
+    """A log handler that writes through ``inner`` above the printer's live line."""
+
+    def __init__(self, inner: logging.Handler, printer: _StatusPrinter) -> None:
+        super().__init__(inner.level)
+        self.inner = inner
+        self.printer = printer
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with self.printer.lock:
+            self.printer.erase()
+            try:
+                self.inner.handle(record)
+            finally:
+                self.printer.redraw()
+
+
+def _status_printer(every: int, enabled: bool = True) -> contextlib.AbstractContextManager[Any]:
+    """The live status line (:class:`_StatusPrinter`, logs above it), or None when
+    ``enabled`` is false or ``every`` is 0 (``--status-every 0``: no status line)."""
+    if not enabled or every == 0:
+        return contextlib.nullcontext(None)
+    return _StatusPrinter(every=every).logs_above()
+
+
+def _positive_seconds(text: str) -> float:
+    """``argparse`` type of ``--duration``: a finite number of seconds > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
+    return value
+
+
+def _status_every(text: str) -> int:
+    """``argparse`` type of ``--status-every``: whole seconds >= 0 (0: no status line)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(
+            f"must be a whole number of seconds >= 0 (0: no status line), got {text!r}"
+        )
+    return value
+
+
+def _interruptible(cmd: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """A Ctrl-C while the run's own handlers are not in place (loading the configuration
+    and the imports before it, the moment after it) ends the command with 130 and one
+    line, not a traceback."""
+
+    def wrapped(args: argparse.Namespace) -> int:
+        try:
+            return cmd(args)
+        except KeyboardInterrupt:
+            print("\ninterrupted (SIGINT)", file=sys.stderr)
+            return 128 + int(signal.SIGINT)
+
+    wrapped.__doc__ = cmd.__doc__
+    return wrapped
 
 
 # -- run ------------------------------------------------------------------------------------
+@_interruptible
 def cmd_run(args: argparse.Namespace) -> int:
+    """The service. Exit 0 when SIGTERM (systemd's stop) or ``--duration`` ends it,
+    130 when SIGINT (Ctrl-C) does, 2 on a configuration or start-up error."""
     setup_logging(args.log_level)
     config = config_from_args(args)
     from ..io.sdnotify import Notifier, watchdog_interval_us
@@ -114,7 +307,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ..service.endpoint_setup import resolve_state_paths
 
     config = dataclasses.replace(config, mavlink=resolve_state_paths(config.mavlink, state))
-    printer = _StatusPrinter(every=args.status_every) if not args.no_status else None
+    signals = _Signals()
+    ran_out: list[bool] = []  # --duration ended the run (not a signal)
 
     if config.camera.source.source == "sim":
         log.info("camera source is the simulator: flying the mock autopilot (SITL)")
@@ -125,14 +319,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _run_sitl_until(
             config,
             args.duration,
-            printer,
+            _status_printer(args.status_every, not args.no_status),
+            signals,
+            service=True,
             notifier=notifier,
             state_dir=str(state),
             log_dir=log_dir,
             min_accuracy=None,
         )
 
-    async def main_flight() -> int:
+    async def main_flight(printer: _StatusPrinter | None) -> DaemonSummary | int:
         import asyncio
 
         from ..io.cameras.base import CameraError
@@ -148,14 +344,21 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         stop = asyncio.Event()
-        _install_signals(stop)
+        signals.install(stop)
         if args.duration is not None:
-            asyncio.get_running_loop().call_later(args.duration, stop.set)
+
+            def time_up() -> None:
+                if not stop.is_set():
+                    ran_out.append(True)
+                stop.set()
+
+            asyncio.get_running_loop().call_later(args.duration, time_up)
         from ..io.aio import monotonic_us
         from ..io.persist import SigningKeyError
         from ..service.endpoint_setup import make_endpoint, persist
 
-        cameras = [CameraInput(cam.name, cam.model, source)]
+        # The camera is expected at the rate it is set to ([camera] fps).
+        cameras = [CameraInput(cam.name, cam.model, source, fps=cam.source.fps)]
         try:
             endpoint, warnings = make_endpoint(config.mavlink, monotonic_us())
         except SigningKeyError as exc:
@@ -182,25 +385,33 @@ def cmd_run(args: argparse.Namespace) -> int:
             flight_log=flight_log,
         )
         try:
-            summary = await daemon.run(stop)
+            return await daemon.run(stop)
         finally:
             if flight_log is not None:
                 await asyncio.to_thread(flight_log.stop)  # drains the queue; off the loop
             with contextlib.suppress(OSError):
                 persist(config.mavlink, endpoint)
-        if printer is not None:
-            printer.done()
-        if args.summary_json:
-            write_summary_json(args.summary_json, summary)
-        lat = summary.latency_percentile_ms(99)
-        print(
-            f"stopped after {summary.duration_s:.1f} s: captured {summary.captured}, processed "
-            f"{summary.processed}, dropped {summary.dropped}, failed {summary.failed}, rejected "
-            f"{summary.rejected}; latency p99 {lat:.2f} ms; faults {summary.faults or 'none'}"
-        )
-        return 0
 
-    return _run_loop(main_flight)
+    with _status_printer(args.status_every, not args.no_status) as printer:
+        summary = _run_loop(lambda: main_flight(printer))
+    if isinstance(summary, int):
+        return summary
+    if args.summary_json:
+        write_summary_json(args.summary_json, summary)
+    from ..service.plumbing import run_length_text
+
+    stopped_by = "" if ran_out else signals.stopped_by(True) or "stop"
+    lat = summary.latency_percentile_ms(99)
+    latency = f"latency p99 {lat:.2f} ms" if summary.latencies_ms else "latency n/a"
+    ran = run_length_text(summary.duration_s, args.duration, stopped_by)
+    if not ran.startswith(("stopped", "interrupted")):
+        ran = f"stopped after {ran}"
+    print(
+        f"{ran}: captured {summary.captured}, processed {summary.processed}, dropped"
+        f" {summary.dropped}, failed {summary.failed}, rejected {summary.rejected}; {latency};"
+        f" faults {summary.faults or 'none'}"
+    )
+    return _Signals.exit_status(True, stopped_by, service=True)
 
 
 def write_summary_json(path: str, summary: Any) -> None:
@@ -237,7 +448,10 @@ def write_summary_json(path: str, summary: Any) -> None:
 
 
 # -- sitl -----------------------------------------------------------------------------------
+@_interruptible
 def cmd_sitl(args: argparse.Namespace) -> int:
+    """SITL for ``--duration``. Exit 0, 1 if the run failed, 128 + the signal (130 for
+    SIGINT) if one cut it short."""
     setup_logging(args.log_level)
     config = config_from_args(args)
     if args.autopilot == "ardupilot":
@@ -258,47 +472,47 @@ def cmd_sitl(args: argparse.Namespace) -> int:
 
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
-    printer = _StatusPrinter(every=args.status_every)
+    printer = _status_printer(args.status_every)
+    signals = _Signals()
     if args.clock == "virtual":
-        return _run_sitl_virtual(config, args.duration, printer, args.log, min_accuracy)
+        return _run_sitl_virtual(config, args.duration, printer, signals, args.log, min_accuracy)
     return _run_sitl_until(
-        config, args.duration, printer, log_dir=args.log, min_accuracy=min_accuracy
+        config, args.duration, printer, signals, log_dir=args.log, min_accuracy=min_accuracy
     )
+
+
+def _finish(report: SitlReport, signals: _Signals, *, service: bool = False) -> int:
+    """Print ``report`` (naming the signal that cut it short) and return the exit status."""
+    stopped_by = signals.stopped_by(report.stopped_by == "stop")
+    if stopped_by:
+        report = dataclasses.replace(report, stopped_by=stopped_by)
+    print("\n".join(report.lines()))
+    return _Signals.exit_status(report.ok, stopped_by, service=service)
 
 
 def _run_sitl_virtual(
     config: AppConfig,
     duration_s: float,
-    printer: _StatusPrinter,
+    printer: contextlib.AbstractContextManager[_StatusPrinter | None],
+    signals: _Signals,
     log_dir: str | None,
     min_accuracy: float | None,
 ) -> int:
     """``sitl --clock virtual``: no event loop; SIGINT/SIGTERM end the simulation early."""
-    import threading
-
     from ..sitl.mock import run_sitl_virtual
 
     stop = threading.Event()
-    previous = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(ValueError):  # not the main thread
-            previous[sig] = signal.signal(sig, lambda *_: stop.set())
-    try:
+    with printer as on_status, signals.installed(stop.set):
         report = run_sitl_virtual(
             config,
             camera_model=config.camera.model,
             duration_s=duration_s,
             should_stop=stop.is_set,
-            on_status=printer,
+            on_status=on_status,
             log_dir=log_dir,
             min_accuracy=min_accuracy,
         )
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    printer.done()
-    print("\n".join(report.lines()))
-    return 0 if report.ok else 1
+    return _finish(report, signals)
 
 
 def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
@@ -332,32 +546,34 @@ def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
 def _run_sitl_until(
     config: AppConfig,
     duration_s: float | None,
-    printer: _StatusPrinter | None,
+    printer: contextlib.AbstractContextManager[_StatusPrinter | None],
+    signals: _Signals,
+    *,
+    service: bool = False,
     **kwargs: Any,
 ) -> int:
-    """SITL on uvloop until ``duration_s`` or SIGINT/SIGTERM; prints the report."""
+    """SITL on uvloop until ``duration_s`` or SIGINT/SIGTERM; prints the report.
+    ``service``: ``run`` (SIGTERM is its normal stop, exit 0)."""
 
-    async def main() -> int:
+    async def main(on_status: _StatusPrinter | None) -> SitlReport:
         import asyncio
 
         from ..sitl.mock import run_sitl
 
         stop = asyncio.Event()
-        _install_signals(stop)
-        report = await run_sitl(
+        signals.install(stop)
+        return await run_sitl(
             config,
             camera_model=config.camera.model,
             duration_s=duration_s,
             stop=stop,
-            on_status=printer,
+            on_status=on_status,
             **kwargs,
         )
-        if printer is not None:
-            printer.done()
-        print("\n".join(report.lines()))
-        return 0 if report.ok else 1
 
-    return _run_loop(main)
+    with printer as on_status:
+        report = _run_loop(lambda: main(on_status))
+    return _finish(report, signals, service=service)
 
 
 # -- config check ---------------------------------------------------------------------------
@@ -381,14 +597,20 @@ def add_parsers(sub: Any) -> None:
     )
     add_config_arguments(p)
     add_log_level_argument(p)
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument(
+        "--duration",
+        type=_positive_seconds,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (> 0; default: until SIGTERM, exit 0, or SIGINT, exit 130)",
+    )
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")
     p.add_argument(
         "--status-every",
-        type=int,
+        type=_status_every,
         default=5,
         metavar="N",
-        help="status line every N s when not a terminal (default 5)",
+        help="status line every N s when not a terminal (default 5; 0: no status line)",
     )
     p.add_argument(
         "--summary-json", metavar="FILE", default=None, help="write the run's summary as JSON"
@@ -427,7 +649,13 @@ def add_parsers(sub: Any) -> None:
         help="ardupilot: the pilot switches to this mode (e.g. LOITER) 1 s after the applet"
         " braked; the applet must stand down",
     )
-    p.add_argument("--duration", type=float, default=20.0, metavar="S", help="seconds (default 20)")
+    p.add_argument(
+        "--duration",
+        type=_positive_seconds,
+        default=20.0,
+        metavar="S",
+        help="seconds, > 0 (default 20); SIGINT ends the run early (exit 130)",
+    )
     p.add_argument(
         "--clock",
         choices=("real", "virtual"),
@@ -448,10 +676,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument(
         "--status-every",
-        type=int,
+        type=_status_every,
         default=5,
         metavar="N",
-        help="status line every N s when not a terminal (default 5)",
+        help="status line every N s when not a terminal (default 5; 0: no status line)",
     )
     p.set_defaults(func=cmd_sitl)
 

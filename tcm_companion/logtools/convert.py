@@ -220,7 +220,8 @@ def log_to_scenario(
     chunks: list[tuple[int, bytes]] = []
     offsets_ns: list[int] = []
     skipped = 0
-    for rec in reader.read_log(log_path, topics=[image_topic, topics.MAVLINK_IN]):
+    log_report = reader.LogReport()
+    for rec in reader.read_log(log_path, [image_topic, topics.MAVLINK_IN], log_report):
         if rec.topic == topics.MAVLINK_IN:
             chunks.append((rec.publish_time_ns // 1000, bytes(rec.data)))
             offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
@@ -315,6 +316,8 @@ def log_to_scenario(
             f"{log_path}: {bad} bytes on {topics.MAVLINK_IN} were not valid MAVLink frames "
             "(dropped)"
         )
+    # a truncated or damaged log: the scenario holds only what was readable; say so
+    summary.warnings += [f"{p} (exported what was readable)" for p in log_report.problems()]
     for w in summary.warnings:
         log.warning("%s", w)
     return summary

@@ -45,7 +45,10 @@ Policies that live here:
 - **Stale inputs make objects unknown.** While the attitude input is unhealthy, or the
   position input is unhealthy and the egomotion source is the autopilot's, every
   object's state is ``unknown`` with the input's problem as the reason. When a camera
-  goes stale, its last objects are sent once more as ``unknown``.
+  becomes unhealthy (stale, slow), its last objects are sent once more as ``unknown``.
+  A condition is one fault until it clears: it is counted, announced (STATUSTEXT) and
+  clears the objects once, however its measured rate moves meanwhile. A camera's
+  expected rate is its own (``camera_rates_hz``: the application's ``[camera] fps``).
 - **A failing frame is not a failing daemon.** An exception in the pipeline is counted,
   reported (STATUSTEXT) and the frame yields no result; after
   ``rebuild_after_errors`` consecutive failures the camera's pipeline is rebuilt.
@@ -97,6 +100,10 @@ _EGO_SOURCE = {
     "autopilot": d.TCM_EGOMOTION_SOURCE_AUTOPILOT,
     "fused": d.TCM_EGOMOTION_SOURCE_FUSED,
 }
+
+
+#: A camera's expected frame rate when the driver does not give one (Hz).
+DEFAULT_CAMERA_HZ = 25.0
 
 
 @dataclass(frozen=True)
@@ -296,13 +303,25 @@ class Companion:
         config: DaemonConfig = DaemonConfig(),
         camera_names: Sequence[str] | None = None,
         *,
+        camera_rates_hz: Sequence[float] | None = None,
         pipeline_timer: Callable[[], float] | None = None,
     ) -> None:
-        """``pipeline_timer`` is what the pipelines time their stages with (seconds;
-        default ``time.perf_counter``); the virtual-time SITL passes its own so that
-        nothing it records depends on the machine's speed."""
+        """``camera_rates_hz``: the frame rate each camera is set to (the application's
+        ``[camera] fps``; default :data:`DEFAULT_CAMERA_HZ` each): a camera is ``slow``
+        below half of its own. ``pipeline_timer`` is what the pipelines time their stages
+        with (seconds; default ``time.perf_counter``); the virtual-time SITL passes its
+        own so that nothing it records depends on the machine's speed."""
         if not cameras:
             raise ValueError("at least one camera is needed")
+        rates = (
+            [DEFAULT_CAMERA_HZ] * len(cameras)
+            if camera_rates_hz is None
+            else [float(r) for r in camera_rates_hz]
+        )
+        if len(rates) != len(cameras):
+            raise ValueError(f"{len(cameras)} camera(s) but {len(rates)} camera rate(s)")
+        if not all(math.isfinite(r) and r > 0 for r in rates):
+            raise ValueError(f"camera rates must be positive frames per second, got {rates}")
         self.config = config
         self.endpoint = endpoint
         self.base_pipeline_config = pipeline_config
@@ -318,7 +337,10 @@ class Companion:
         self.cameras = [
             _Camera(i, names[i], cam, self._new_pipeline(cam)) for i, cam in enumerate(cameras)
         ]
-        specs = [InputSpec(c.name, 25.0, config.camera_timeout_us) for c in self.cameras]
+        specs = [
+            InputSpec(c.name, rate, config.camera_timeout_us)
+            for c, rate in zip(self.cameras, rates, strict=True)
+        ]
         ecfg = endpoint.config
         specs.append(InputSpec("attitude", ecfg.attitude_rate_hz, config.attitude_timeout_us))
         specs.append(
@@ -642,11 +664,20 @@ class Companion:
     def tick(self, now_mono_us: int) -> list[tuple[str, str]]:
         """The input part of the health check (run by :meth:`process_due` once a
         second); returns the input changes ``(input, problem)`` it reported."""
+        # Once per condition (Inputs.changes): a slow camera whose measured rate moves
+        # from 8 to 9 Hz is the same fault, not a new one to count, announce and clear
+        # the objects for.
         changes = self.inputs.changes(now_mono_us)
         for name, problem in changes:
             if problem:
-                self.stats.faults[problem.split(" (")[0]] += 1
-                self.endpoint.statustext(d.MAV_SEVERITY_WARNING, f"TCM: {problem}", now_mono_us)
+                condition = self.inputs.condition(name)
+                self.stats.faults[f"{name} {condition}"] += 1
+                self.endpoint.statustext(
+                    d.MAV_SEVERITY_WARNING,
+                    f"TCM: {problem}",
+                    now_mono_us,
+                    key=f"input {name} {condition}",
+                )
                 cam = next((c for c in self.cameras if c.name == name), None)
                 if cam is not None and cam.last_objects:
                     # Tell the autopilot once that what it last heard is no longer known.
@@ -719,14 +750,17 @@ class Companion:
         ttcs = [o.ttc_s for o in objs if o.ttc_s == o.ttc_s]
         st = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "none"
         lat = sorted(self.latencies_ms)
-        p99 = lat[min(len(lat) - 1, int(0.99 * len(lat)))] if lat else float("nan")
-        p50 = lat[len(lat) // 2] if lat else float("nan")
+        if lat:
+            p99 = lat[min(len(lat) - 1, int(0.99 * len(lat)))]
+            latency = f"latency p50 {lat[len(lat) // 2]:.1f} p99 {p99:.1f} ms"
+        else:
+            latency = "latency n/a"  # no frame's output written yet
         problems = [s.problem for s in self.inputs.status(now_mono_us).values() if s.problem]
         head = f"objects {len(objs)} ({st}) | "
         if ttcs:
             head += f"TTC {min(ttcs):.1f}s | "
         return head + (
-            f"{self.frame_rate_hz(now_mono_us):4.1f} fps | latency p50 {p50:.1f} p99 {p99:.1f} ms"
+            f"{self.frame_rate_hz(now_mono_us):4.1f} fps | {latency}"
             f" | drops {self.stats.frames_dropped} | "
             + ("; ".join(problems) if problems else "inputs OK")
         )

@@ -230,6 +230,7 @@ class Daemon:
                 t0,
                 daemon_cfg,
                 [c.name for c in self.camera_inputs],
+                camera_rates_hz=[c.fps for c in self.camera_inputs],
             )
             mavlink_cfg = self.config.mavlink
             ep = endpoint

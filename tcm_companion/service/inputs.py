@@ -8,6 +8,12 @@ was usable (a NaN attitude arrives on time but is not valid). An input is *healt
 when all three hold. Objects whose result needs an unhealthy input are reported
 ``unknown`` with the input's name as the reason.
 
+What is wrong with an input is its *condition* (``missing``, ``stale``, ``invalid``,
+``slow``); its *problem* is the condition as text, which may carry a number that changes
+while the condition holds (``camera0 slow (8 Hz, expected 25)``). A condition is one
+fault until it clears: :meth:`Inputs.changes` reports an input when its condition
+changes, not when the number in its problem does.
+
 Pure: times are arguments (µs on the companion's monotonic clock); nothing here reads
 a clock.
 """
@@ -30,7 +36,7 @@ class InputSpec:
     required: bool = True  # an unhealthy optional input is reported but does not fault
 
     def __post_init__(self) -> None:
-        if self.expected_hz <= 0 or self.timeout_us <= 0 or self.window_us <= 0:
+        if not self.expected_hz > 0 or self.timeout_us <= 0 or self.window_us <= 0:
             raise ValueError(f"input {self.name}: rates, time-outs and windows must be > 0")
         if not 0.0 <= self.min_rate_fraction <= 1.0:
             raise ValueError(f"input {self.name}: min_rate_fraction must be in [0, 1]")
@@ -44,23 +50,36 @@ class InputStatus:
     valid: bool
     rate_hz: float
     age_us: int | None  # since the newest message; None: never received
+    expected_hz: float = 0.0  # the spec's rate (what "slow" is measured against)
 
     @property
     def healthy(self) -> bool:
         return self.alive and self.rate_ok and self.valid
 
     @property
-    def problem(self) -> str:
-        """Short reason for STATUSTEXT and ``unknown`` states ("" when healthy)."""
+    def condition(self) -> str:
+        """What is wrong, as one word that stays the same while it holds: ``missing``,
+        ``stale``, ``invalid`` or ``slow`` ("" when healthy)."""
         if self.age_us is None:
-            return f"{self.name} missing"
+            return "missing"
         if not self.alive:
-            return f"{self.name} stale"
+            return "stale"
         if not self.valid:
-            return f"{self.name} invalid"
+            return "invalid"
         if not self.rate_ok:
-            return f"{self.name} slow ({self.rate_hz:.0f} Hz)"
+            return "slow"
         return ""
+
+    @property
+    def problem(self) -> str:
+        """Short reason for STATUSTEXT and ``unknown`` states ("" when healthy): the
+        condition, and for ``slow`` the measured and the expected rate."""
+        condition = self.condition
+        if not condition:
+            return ""
+        if condition == "slow":
+            return f"{self.name} slow ({self.rate_hz:.0f} Hz, expected {self.expected_hz:g})"
+        return f"{self.name} {condition}"
 
 
 class InputMonitor:
@@ -69,6 +88,11 @@ class InputMonitor:
     def __init__(self, spec: InputSpec, started_us: int) -> None:
         self.spec = spec
         self._started_us = started_us
+        # The rate is judged one window after this: the start, or the first message
+        # after the input was missing or stale. An input that (re)appears has not had a
+        # window to show its rate in; judging it over time it was absent would report a
+        # recovering input "slow" on its way back, a second fault for one condition.
+        self._since_us = started_us
         # Enough arrivals for the window at twice the expected rate; older ones drop.
         maxlen = max(8, int(2 * spec.expected_hz * spec.window_us / 1e6) + 2)
         self._arrivals: deque[int] = deque(maxlen=maxlen)
@@ -82,6 +106,8 @@ class InputMonitor:
             # The clock the arrivals are stamped with never goes backwards; if a caller's
             # does, start the window over rather than compute a negative rate.
             self._arrivals.clear()
+        if not self._arrivals or t_us - self._arrivals[-1] > self.spec.timeout_us:
+            self._since_us = max(self._started_us, t_us)  # (re)appears
         self._arrivals.append(t_us)
         self._last_valid = valid
         self.received += 1
@@ -91,17 +117,20 @@ class InputMonitor:
     def status(self, now_us: int) -> InputStatus:
         spec = self.spec
         if not self._arrivals:
-            return InputStatus(spec.name, False, False, False, 0.0, None)
+            return InputStatus(spec.name, False, False, False, 0.0, None, spec.expected_hz)
         age = now_us - self._arrivals[-1]
         alive = age <= spec.timeout_us
         lo = now_us - spec.window_us
         n = sum(1 for t in self._arrivals if t > lo)
-        # Before a whole window has passed since start, measure over the time there was.
-        span_us = min(spec.window_us, max(now_us - self._started_us, 1))
+        # Before a whole window has passed since the start (or since the input came
+        # back), measure over the time there was, and do not judge it yet.
+        since = min(self._since_us, now_us)
+        span_us = min(spec.window_us, max(now_us - since, 1))
         rate = n / (span_us / 1e6)
-        warming = now_us - self._started_us < spec.window_us
+        warming = now_us - since < spec.window_us
         rate_ok = warming or rate >= spec.min_rate_fraction * spec.expected_hz
-        return InputStatus(spec.name, alive, rate_ok, self._last_valid, rate, age)
+        valid = self._last_valid
+        return InputStatus(spec.name, alive, rate_ok, valid, rate, age, spec.expected_hz)
 
 
 class Inputs:
@@ -112,7 +141,7 @@ class Inputs:
         if len(set(names)) != len(names):
             raise ValueError(f"input names must be unique, got {names}")
         self.monitors = {s.name: InputMonitor(s, started_us) for s in specs}
-        self._last_problem: dict[str, str] = {}
+        self._last_condition: dict[str, str] = {}
 
     def update(self, name: str, t_us: int, valid: bool = True) -> None:
         self.monitors[name].update(t_us, valid)
@@ -124,13 +153,18 @@ class Inputs:
         return self.monitors[name].status(now_us).healthy
 
     def changes(self, now_us: int) -> list[tuple[str, str]]:
-        """``(input, problem)`` for every input whose problem changed since the last
-        call; problem "" means it recovered. The first call reports only problems."""
+        """``(input, problem)`` for every input whose *condition* changed since the last
+        call (:attr:`InputStatus.condition`; a slow input whose measured rate moves is
+        still the same condition, and is not reported again); problem "" means it
+        recovered. The first call reports only problems."""
         out = []
         for name, st in self.status(now_us).items():
-            problem = st.problem
-            before = self._last_problem.get(name, "")
-            if problem != before:
-                out.append((name, problem))
-            self._last_problem[name] = problem
+            condition = st.condition
+            if condition != self._last_condition.get(name, ""):
+                out.append((name, st.problem))
+            self._last_condition[name] = condition
         return out
+
+    def condition(self, name: str) -> str:
+        """``name``'s condition as of the last :meth:`changes` ("" healthy)."""
+        return self._last_condition.get(name, "")

@@ -76,11 +76,14 @@ class NoNotifier:
 
 @dataclass
 class CameraInput:
-    """One camera as the daemon runs it: its model (for the pipeline) and its source."""
+    """One camera as the daemon runs it: its model (for the pipeline), its source, and
+    the frame rate it is set to (the application's ``[camera] fps``): its input is
+    ``slow`` below half of that."""
 
     name: str
     model: CameraModel
     source: FrameSource
+    fps: float = 25.0
 
 
 @dataclass
@@ -113,6 +116,24 @@ class DaemonSummary:
         if not self.latencies_ms:
             return float("nan")
         return float(np.percentile(np.asarray(self.latencies_ms), q))
+
+
+def run_length_text(duration_s: float, planned_s: float | None, stopped_by: str = "") -> str:
+    """How long a run went, for its summary. ``stopped_by``: "" (it ran its planned time),
+    ``"stop"`` (its caller stopped it) or the signal that ended it (``"SIGINT"``):
+
+    - ``20.0 s`` — its whole time;
+    - ``interrupted after 7.0 of 30 s (SIGINT)`` — a signal cut it short;
+    - ``stopped after 7.0 s (SIGTERM)`` — a service without a planned time, stopped the
+      normal way; ``stopped after 7.0 of 30 s`` — its caller stopped it.
+    """
+    if not stopped_by:
+        return f"{duration_s:.1f} s"
+    of = " s" if planned_s is None else f" of {planned_s:.3f}".rstrip("0").rstrip(".") + " s"
+    if stopped_by == "stop":
+        return f"stopped after {duration_s:.1f}{of}"
+    word = "stopped" if stopped_by == "SIGTERM" and planned_s is None else "interrupted"
+    return f"{word} after {duration_s:.1f}{of} ({stopped_by})"
 
 
 class Plumbing:

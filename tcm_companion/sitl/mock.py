@@ -52,7 +52,7 @@ from ..io.transports import Transport, open_transport
 from ..logsetup import start_flight_log
 from ..service.daemon import Daemon
 from ..service.endpoint_setup import make_endpoint, persist, resolve_state_paths
-from ..service.plumbing import CameraInput, DaemonSummary, NotifierLike
+from ..service.plumbing import CameraInput, DaemonSummary, NotifierLike, run_length_text
 from ..sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 from ..sim.vehicle.mock_autopilot_run import run_mock_autopilot
 from .virtual import RunTimer, VirtualTimeModel, frame_result_key
@@ -115,6 +115,10 @@ class SitlReport:
     log: Any = None  # the flight log's final stats, when logging
     log_sha256: str = ""  # the flight log's bytes (all parts, in order)
     statustexts: list[str] = field(default_factory=list)  # what the daemon told the GCS
+    planned_s: float | None = None  # the run's duration as asked (None: until stopped)
+    # "" ran its planned time; "stop": stopped early by its caller; the signal's name
+    # ("SIGINT") when the command line knows which one stopped it.
+    stopped_by: str = ""
 
     @property
     def ok(self) -> bool:
@@ -144,16 +148,21 @@ class SitlReport:
                 f" {self.model.link_latency_us / 1000:g} ms)"
             )
         coverage = "n/a" if not sc.scored else f"{100 * sc.coverage:.1f}%"
+        latency = (
+            f"p50 {lat[0]:.2f} ms, p90 {lat[1]:.2f} ms, p99 {lat[2]:.2f} ms"
+            if s.latencies_ms
+            else "n/a (no frame's output was written)"
+        )
+        ran = run_length_text(s.duration_s, self.planned_s, self.stopped_by)
         out = [
-            f"SITL {self.scenario}: {s.duration_s:.1f} s, {self.clock} clock",
+            f"SITL {self.scenario}: {ran}, {self.clock} clock",
             f"  frames: captured {s.captured} = processed {s.processed} + dropped {s.dropped}"
             f" + failed {s.failed} + rejected {s.rejected}"
             f" ({'balanced' if s.frames_balance else 'NOT BALANCED'})",
-            f"  latency capture->MAVLink: p50 {lat[0]:.2f} ms, p90 {lat[1]:.2f} ms,"
-            f" p99 {lat[2]:.2f} ms{modelled}",
+            f"  latency capture->MAVLink: {latency}{modelled}",
             f"  objects: {sc.matched}/{sc.truth_frames} object-frames matched; after {WARMUP_S:.0f} s"
             f" warm-up: {self.accuracy_text()}, coverage {coverage}",
-            f"  states: {dict(sc.by_state)}",
+            f"  states: {dict(sc.by_state) or 'none'}",
             f"  mock autopilot: {self.mock_status_received} TCM_OBJECT_STATUS received,"
             f" {self.mock_status_problems} with problems"
             + (f" {self.mock_problem_kinds}" if self.mock_problem_kinds else "")
@@ -287,12 +296,14 @@ def _sim_camera(
 ) -> list[CameraInput]:
     from ..sim.scene.truth_camera import SimulatedCamera
 
+    fps = config.camera.source.fps
     camera_kwargs.setdefault("noise_dn", config.camera.source.sim_noise_dn)
+    camera_kwargs.setdefault("fps", fps)
     if camera_factory is not None:
         source = camera_factory(mock, model, **camera_kwargs)
     else:
         source = SimulatedCamera.for_mock(model, mock, **camera_kwargs)
-    return [CameraInput("camera0", model, source)]
+    return [CameraInput("camera0", model, source, fps=fps)]
 
 
 def _file_sha256(paths: Sequence[Path]) -> str:
@@ -315,6 +326,8 @@ def _report(
     timer: RunTimer,
     model: VirtualTimeModel | None = None,
     loop_lag_ms: float = 0.0,
+    planned_s: float | None = None,
+    stopped_early: bool = False,
 ) -> SitlReport:
     # Real time only: the daemon and the mock share this process's event loop. When the
     # machine stalls the whole loop (a loaded CI runner), a status can reach the mock over
@@ -382,6 +395,8 @@ def _report(
         log=log_stats,
         log_sha256=log_sha,
         statustexts=statustexts,
+        planned_s=planned_s,
+        stopped_by="stop" if stopped_early else "",
     )
 
 
@@ -493,10 +508,13 @@ async def run_sitl(
                 run_mock_autopilot(mock_link, mcfg, mock_stop, autopilot=mock), name="mock"
             )
             timer_task: asyncio.Task[Any] | None = None
+            ran_out: list[bool] = []  # the duration ended the run (not its caller's stop)
             if duration_s is not None:
 
                 async def _stop_after() -> None:
                     await asyncio.sleep(duration_s)
+                    if not stop.is_set():
+                        ran_out.append(True)
                     stop.set()
 
                 timer_task = asyncio.create_task(_stop_after(), name="duration")
@@ -531,6 +549,8 @@ async def run_sitl(
         min_accuracy=min_accuracy,
         timer=timer,
         loop_lag_ms=lag.max_ms,
+        planned_s=duration_s,
+        stopped_early=not ran_out,
     )
 
 
@@ -613,6 +633,7 @@ def run_sitl_virtual(
             up,
             config.daemon,
             [c.name for c in cameras],
+            camera_rates_hz=[c.fps for c in cameras],
             pipeline_timer=lambda: now_us() / 1e6,  # stages take no simulated time
         )
         plumbing = Plumbing(
@@ -652,4 +673,6 @@ def run_sitl_virtual(
         min_accuracy=min_accuracy,
         timer=timer,
         model=vm,
+        planned_s=duration_s,
+        stopped_early=sim.stopped_early,
     )

@@ -120,6 +120,7 @@ class VirtualSitl:
         self._companion_wake_mono_us: int | None = None
         self._mock_wake_mono_us: int | None = None
         self.bytes_lost = 0  # while the link was down
+        self.stopped_early = False  # should_stop() ended the run before its duration
         self.stalled_turns = 0  # companion turns due again at once with nothing done
         for at_s, fn in schedule:
             self._push(self.start_mono_us + round(at_s * 1e6), _CALL, fn)
@@ -246,6 +247,7 @@ class VirtualSitl:
             elif kind == _CALL:
                 payload(t)
                 self._wake_mock()
+        self.stopped_early = not ran_out
         return self._stop(end if ran_out else None)
 
     def _stop(self, end: int | None) -> DaemonSummary:

@@ -103,6 +103,76 @@ def _remap_flat(src: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> n
     return out.reshape(rows * _REMAP_COLS, channels)[:n]
 
 
+class _Maps:
+    """Reusable float32 ``cv2.remap`` maps for a flat list of points.
+
+    ``x, y = maps.coords(n)`` are views the caller writes the points' coordinates into
+    (in place, so no padding copy); ``maps.sample(src, border)`` then returns the
+    bilinear samples (n, C) of those points. The maps' tail past ``n`` holds stale but
+    finite coordinates whose samples are dropped. Each remapped point depends on its own
+    coordinates only, so the samples equal :func:`_remap_flat`'s.
+    """
+
+    def __init__(self) -> None:
+        self._x = np.zeros(_REMAP_COLS, np.float32)
+        self._y = np.zeros(_REMAP_COLS, np.float32)
+        self._n = 0
+
+    def coords(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        size = max(-(-n // _REMAP_COLS), 1) * _REMAP_COLS
+        if self._x.size < size:
+            self._x = np.zeros(size, np.float32)
+            self._y = np.zeros(size, np.float32)
+        self._n = n
+        return self._x[:n], self._y[:n]
+
+    def sample(self, src: np.ndarray, border: int) -> np.ndarray:
+        n = self._n
+        channels = src.shape[2] if src.ndim == 3 else 1
+        if n == 0:
+            return np.zeros((0, channels), src.dtype)
+        rows = -(-n // _REMAP_COLS)
+        size = rows * _REMAP_COLS
+        out = cv2.remap(
+            src,
+            self._x[:size].reshape(rows, _REMAP_COLS),
+            self._y[:size].reshape(rows, _REMAP_COLS),
+            cv2.INTER_LINEAR,
+            borderMode=border,
+        )
+        return out.reshape(size, channels)[:n]
+
+
+def _planes_f32(samples: np.ndarray) -> list[np.ndarray]:
+    """(n, C) uint8 samples as C contiguous float32 planes (the values exactly)."""
+    if samples.shape[1] == 1:
+        return [samples[:, 0].astype(np.float32)]
+    n, c = samples.shape
+    return [p.reshape(n).astype(np.float32) for p in cv2.split(samples.reshape(n, 1, c))]
+
+
+def _span(mask: np.ndarray) -> tuple[int, int]:
+    """``(first, last + 1)`` of the True entries of a 1-D bool array, (0, 0) if none."""
+    i0 = int(mask.argmax())
+    if not mask[i0]:
+        return 0, 0
+    return i0, mask.shape[0] - int(mask[::-1].argmax())
+
+
+def _copy_where(dst: np.ndarray, src: np.ndarray, mask: np.ndarray) -> None:
+    """``dst[..., mask] = src[..., mask]`` for planar rows; the part of the span past the
+    mask's last False entry is copied whole (the ground below the horizon band)."""
+    rest = mask[::-1].argmin()
+    j = mask.shape[0] - int(rest) if not mask[-1 - int(rest)] else 0
+    if j:
+        if dst.ndim == 1:
+            np.putmask(dst[:j], mask[:j], src[:j])
+        else:
+            for c in range(dst.shape[0]):
+                np.putmask(dst[c, :j], mask[:j], src[c, :j])
+    dst[..., j:] = src[..., j:]
+
+
 def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
     t = np.clip((x - e0) * (1.0 / (e1 - e0)), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
@@ -173,6 +243,7 @@ class _Layout:
         self.tile_cos = np.cos(radius)
         self.tile_sin = np.sin(radius)
         self._ar = np.arange(self.t2)
+        self.invalid_idx = np.nonzero(~self.valid)[0]
         self._camera = camera
         self._pixel_axes: tuple[np.ndarray, np.ndarray] | None = None
         self._pixel_rc: np.ndarray | None = None
@@ -223,9 +294,22 @@ class _Layout:
         img = np.ascontiguousarray(img)
         return img if planar.ndim == 2 else img[..., 0]
 
+    def to_bgr_image(self, rgb: np.ndarray) -> np.ndarray:
+        """(3, N) uint8 planar RGB → (H, W, 3) BGR image (:meth:`to_image` of the
+        channels reversed): interleave with ``cv2.merge``, then move whole tile rows."""
+        ts = self.tile_px
+        bgr = cv2.merge([rgb[2], rgb[1], rgb[0]])
+        t = bgr.reshape(self.tiles_y, self.tiles_x, ts, ts, 3).transpose(0, 2, 1, 3, 4)
+        img = t.reshape(self.tiles_y * ts, self.tiles_x * ts, 3)[: self.height, : self.width]
+        return np.ascontiguousarray(img)
+
     def pixels_of_tiles(self, kept_tiles: np.ndarray) -> np.ndarray:
         tiles = self.tile_ids[kept_tiles]
         return (tiles[:, None] * self.t2 + self._ar[None, :]).ravel()
+
+
+#: The ground span's first pixel, end, and its points' north, east and footprint (m).
+_GroundHits = tuple[int, int, np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass
@@ -410,6 +494,22 @@ class Renderer:
         self._cyl_bound_radius = np.hypot(self._cyl_radius, self._cyl_height / 2.0)
         self._scratch = np.full(self.layout.n, np.inf)
 
+        # Constants and buffers of the ground and the sky.
+        self._maps = _Maps()
+        self._maps_far = _Maps()
+        self._L32 = self._L.astype(np.float32)
+        offs = self.tex.detail_offsets_px - 0.5
+        self._detail_scale = np.exp2(-np.arange(DETAIL_LEVELS, dtype=np.float32))
+        self._detail_ox = (offs[:, 0].copy(), offs[1:, 0].copy())  # level k, level k + 1
+        self._detail_oy = (offs[:, 1].copy(), offs[1:, 1].copy())
+        self._stone_rgb = np.asarray(world.ground.stone_rgb, np.float32)[:, None]
+        sky = world.sky
+        self._hor_rgb = np.asarray(sky.horizon_rgb, np.float32)[:, None]
+        self._zen_minus_hor = np.asarray(sky.zenith_rgb, np.float32)[:, None] - self._hor_rgb
+        self._haze_rgb = self._hor_rgb * np.float32(0.9)
+        self._cloud_rgb = np.asarray(sky.cloud_rgb, np.float32)[:, None]
+        self._hill_top = float(np.sin(self.sky_tex.hill_el_rad.max()))
+
         bank_rng = np.random.default_rng(np.random.SeedSequence([2718281, seed]))
         self._noise_bank = bank_rng.standard_normal(
             max(_NOISE_BANK, 3 * self.layout.n) + 3 * self.layout.n, dtype=np.float32
@@ -478,8 +578,9 @@ class Renderer:
             out += noise
         np.clip(out, 0.0, 255.0, out=out)
         img = lin.astype(np.uint8)
-        img[:, ~self.layout.valid] = 0
-        return self.layout.to_image(img[::-1])
+        if self.layout.invalid_idx.size:
+            img[:, self.layout.invalid_idx] = 0
+        return self.layout.to_bgr_image(img)
 
     def render_linear(
         self, t_s: float, pos_ned_m: FloatArray, R_ned_from_body: FloatArray
@@ -575,12 +676,8 @@ class Renderer:
         balls = [(b.centre_ned_m(t_s), b) for b in self.world.balls]
         targets = [(tg.centre_ned_m(t_s), tg) for tg in self.world.targets]
         if background:
-            if height > 1e-3:
-                sunlit = self._ball_shadows(fr, balls)
-                if targets:
-                    sunlit *= self._target_shadows(fr, targets, t_s)
-                self._draw_ground(fr, sunlit)
-            self._draw_sky(fr, np.nonzero(lay.valid & ~ground)[0])
+            self._draw_sky(fr, lay.valid & ~ground)
+            self._draw_ground(fr, balls, targets, t_s)
         for box in self.world.buildings:
             self._draw_box(fr, box)
         self._draw_cylinders(fr)
@@ -645,15 +742,21 @@ class Renderer:
     # Ground and sky
     # ---------------------------------------------------------------------------------
     def _ground_hits(
-        self, fr: _Frame, idx: np.ndarray
+        self, fr: _Frame, g0: int, g1: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Range, north, east and footprint (all float32, metres) of ground pixels ``idx``."""
-        b = _take(fr.B, idx)
-        bd = b[2]
+        """Range, north, east and footprint (all float32, metres) of the pixels ``g0:g1``
+        (the span of the ground pixels). Pixels of the span that are not ground (the
+        horizon band's sky, invalid pixels) get the values of a ray grazing the ground at
+        ``_T_FAR_M``: finite, and never used."""
+        B = fr.B
+        bd = np.maximum(B[2, g0:g1], np.float32(-fr.origin[2] / _T_FAR_M))
         t = np.float32(-fr.origin[2]) / bd
-        n = np.float32(fr.origin[0]) + t * b[0]
-        e = np.float32(fr.origin[1]) + t * b[1]
-        foot = t * _take(self.layout.pix_rad, idx) / np.sqrt(bd)
+        n = t * B[0, g0:g1]
+        n += np.float32(fr.origin[0])
+        e = t * B[1, g0:g1]
+        e += np.float32(fr.origin[1])
+        foot = t * self.layout.pix_rad[g0:g1]
+        foot /= np.sqrt(bd)
         return t, n, e, foot
 
     def _sample_detail(self, n: np.ndarray, e: np.ndarray, foot_m: np.ndarray) -> np.ndarray:
@@ -663,64 +766,99 @@ class Renderer:
         period = np.float32(tex.detail_px)
         x0 = e * inv_texel
         y0 = n * -inv_texel
-        x0 -= np.floor(x0 * (1.0 / period)) * period
-        y0 -= np.floor(y0 * (1.0 / period)) * period
-        lam = np.log2(np.maximum(foot_m * inv_texel, 1.0))
+        for v in (x0, y0):
+            wrap = v * (1.0 / period)
+            np.floor(wrap, out=wrap)
+            wrap *= period
+            v -= wrap
+        lam = foot_m * inv_texel
+        np.maximum(lam, 1.0, out=lam)
+        np.log2(lam, out=lam)
         np.clip(lam, 0.0, DETAIL_LEVELS - 1.001, out=lam)
         k = lam.astype(np.int32)
-        w = lam - k
-        scale = np.exp2(-k.astype(np.float32))
-        offs = tex.detail_offsets_px - 0.5
-        ox, oy = offs[:, 0], offs[:, 1]
-        xa = x0 * scale + _take(ox, k)
-        ya = y0 * scale + _take(oy, k)
-        scale *= 0.5
-        xb = x0 * scale + _take(ox, k + 1)
-        yb = y0 * scale + _take(oy, k + 1)
-        a = _remap_flat(tex.detail_atlas, xa, ya, cv2.BORDER_REPLICATE).T.astype(np.float32)
-        b = _remap_flat(tex.detail_atlas, xb, yb, cv2.BORDER_REPLICATE).T.astype(np.float32)
+        # lam - k is exact in float32, so this equals the float64 weight it once was.
+        w = lam
+        w -= k
+        scale = np.take(self._detail_scale, k)
+        levels = []
+        for lev in (0, 1):
+            x, y = self._maps.coords(k.shape[0])
+            np.multiply(x0, scale, out=x)
+            x += np.take(self._detail_ox[lev], k)
+            np.multiply(y0, scale, out=y)
+            y += np.take(self._detail_oy[lev], k)
+            levels.append(self._maps.sample(tex.detail_atlas, cv2.BORDER_REPLICATE))
+            scale *= 0.5
+        a = np.stack(_planes_f32(levels[0]))
+        b = np.stack(_planes_f32(levels[1]))
         b -= a
         b *= w
         a += b
         return a
 
     def _ground_albedo(
-        self, n: np.ndarray, e: np.ndarray, foot_m: np.ndarray
+        self, n: np.ndarray, e: np.ndarray, foot_m: np.ndarray, ground: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Linear albedo (3, M) of ground points and their static sunlit fraction (M,)."""
+        """Linear albedo (3, M) of ground points and their static sunlit fraction (M,);
+        ``ground`` (M,) marks the points that matter."""
         tex = self.tex
         on, oe = tex.macro_origin_ne_m
         t0, t1 = tex.macro_texels_m
-        mx0 = (e - np.float32(oe)) * np.float32(1.0 / t0) - 0.5
-        my0 = (np.float32(on) - n) * np.float32(1.0 / t0) - 0.5
-        macro = _remap_flat(self.macro[0], mx0, my0, cv2.BORDER_REPLICATE).T.astype(np.float32)
-        far = np.nonzero(foot_m > t0)[0]
-        if far.size:
+        maps = self._maps
+        mx0, my0 = maps.coords(n.shape[0])
+        np.subtract(e, np.float32(oe), out=mx0)
+        mx0 *= np.float32(1.0 / t0)
+        mx0 -= 0.5
+        np.subtract(np.float32(on), n, out=my0)
+        my0 *= np.float32(1.0 / t0)
+        my0 -= 0.5
+        far = foot_m > t0
+        far &= ground
+        f0, f1 = _span(far)
+        if f0 < f1:
+            # The coarse level where the footprint outgrows the fine texel: blended over
+            # the span of those points (the others get weight 0: exactly unchanged).
             r = np.float32(t0 / t1)
-            m1 = _remap_flat(
-                self.macro[1],
-                (_take(mx0, far) + 0.5) * r - 0.5,
-                (_take(my0, far) + 0.5) * r - 0.5,
-                cv2.BORDER_REPLICATE,
-            ).T.astype(np.float32)
-            wm = np.clip((_take(foot_m, far) - t0) * (1.0 / (3.0 * t0)), 0.0, 1.0)
-            m0 = _take(macro, far)
-            _put(macro, far, m0 + (m1 - m0) * wm)
-        lit = macro[3] * np.float32(1.0 / 255.0)
-        albedo = macro[:3] * np.float32(tex.macro_scale)
+            x1, y1 = self._maps_far.coords(f1 - f0)
+            np.add(mx0[f0:f1], 0.5, out=x1)
+            x1 *= r
+            x1 -= 0.5
+            np.add(my0[f0:f1], 0.5, out=y1)
+            y1 *= r
+            y1 -= 0.5
+        macro = _planes_f32(maps.sample(self.macro[0], cv2.BORDER_REPLICATE))
+        if f0 < f1:
+            m1 = _planes_f32(self._maps_far.sample(self.macro[1], cv2.BORDER_REPLICATE))
+            wm = foot_m[f0:f1] - t0
+            wm *= 1.0 / (3.0 * t0)
+            np.clip(wm, 0.0, 1.0, out=wm)
+            for m0c, m1c in zip(macro, m1):
+                m1c -= m0c[f0:f1]
+                m1c *= wm
+                m0c[f0:f1] += m1c
+        lit = macro[3]
+        lit *= np.float32(1.0 / 255.0)
+        albedo = np.stack(macro[:3])
+        albedo *= np.float32(tex.macro_scale)
         det = self._sample_detail(n, e, foot_m)
-        stone = det[3] * np.float32(1.0 / 255.0)
-        stone_rgb = np.asarray(self.world.ground.stone_rgb, np.float32)[:, None]
-        albedo += (stone_rgb - albedo) * stone
+        stone = det[3]
+        stone *= np.float32(1.0 / 255.0)
+        mix = self._stone_rgb - albedo
+        mix *= stone
+        albedo += mix
         albedo *= det[:3]
         albedo *= np.float32(1.0 / 128.0)
         return albedo, lit
 
-    def _ball_shadows(self, fr: _Frame, balls: list[tuple[FloatArray, Ball]]) -> np.ndarray:
-        """(N,) sunlit fraction left by the balls' shadows (1 where no ball shades)."""
-        sunlit = np.ones(self.layout.n, np.float32)
+    def _ball_shadows(
+        self, fr: _Frame, balls: list[tuple[FloatArray, Ball]], hits: _GroundHits
+    ) -> np.ndarray | None:
+        """Sunlit fraction left by the balls' shadows on the ground span (None where no
+        ball shades any ground pixel)."""
         if not balls:
-            return sunlit
+            return None
+        g0, _, n_all, e_all, foot_all = hits
+        sunlit: np.ndarray | None = None
         feet = [_footprint(c, b.radius_m, self._L) for c, b in balls]
         hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
         for k, (centre, ball) in enumerate(balls):
@@ -731,90 +869,132 @@ class Renderer:
             idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
             if idx.size == 0:
                 continue
-            _, n, e, foot = self._ground_hits(fr, idx)
+            loc = idx - g0
+            n, e, foot = _take(n_all, loc), _take(e_all, loc), _take(foot_all, loc)
             cover = _sphere_shadow(
                 n.astype(np.float64), e.astype(np.float64), foot, centre, ball.radius_m, self._L
             )
-            sunlit[idx] *= (1.0 - cover).astype(np.float32)
+            if sunlit is None:
+                sunlit = np.ones(n_all.shape[0], np.float32)
+            sunlit[loc] *= (1.0 - cover).astype(np.float32)
         return sunlit
 
-    def _draw_ground(self, fr: _Frame, sunlit: np.ndarray) -> None:
-        gi = np.nonzero(fr.ground)[0]
-        if gi.size == 0:
+    def _draw_ground(
+        self,
+        fr: _Frame,
+        balls: list[tuple[FloatArray, Ball]],
+        targets: list[tuple[FloatArray, SolidTarget]],
+        t_s: float,
+    ) -> None:
+        """The ground, over the span of the ground pixels (tile-major order puts them
+        nearly contiguous: below the horizon band), with the objects' shadows."""
+        g0, g1 = _span(fr.ground)
+        if g0 >= g1:
             return
-        t, n, e, foot = self._ground_hits(fr, gi)
-        col, lit = self._ground_albedo(n, e, foot)
+        gm = fr.ground[g0:g1]
+        t, n, e, foot = self._ground_hits(fr, g0, g1)
+        hits = (g0, g1, n, e, foot)
+        sunlit = self._ball_shadows(fr, balls, hits)
+        if targets:
+            st = self._target_shadows(fr, targets, t_s, hits)
+            if st is not None:
+                if sunlit is None:
+                    sunlit = st
+                else:
+                    sunlit *= st
+        col, lit = self._ground_albedo(n, e, foot, gm)
         sun = self.world.sun
-        lit *= _take(sunlit, gi)
-        col *= np.float32(sun.ambient) + np.float32(sun.irradiance * self._sin_sun) * lit
-        haze = 1.0 - np.exp(t * np.float32(-1.0 / self.world.sky.haze_distance_m))
-        haze_rgb = np.asarray(self.world.sky.horizon_rgb, np.float32)[:, None] * np.float32(0.9)
-        col += (haze_rgb - col) * haze
-        _put(fr.colour, gi, col)
-        fr.depth[gi] = t
-        fr.ground_t = np.full(self.layout.n, np.nan, np.float32)
-        fr.ground_t[gi] = t
+        if sunlit is not None:
+            lit *= sunlit
+        lit *= np.float32(sun.irradiance * self._sin_sun)
+        lit += np.float32(sun.ambient)
+        col *= lit
+        haze = t * np.float32(-1.0 / self.world.sky.haze_distance_m)
+        np.exp(haze, out=haze)
+        np.subtract(1.0, haze, out=haze)
+        mix = self._haze_rgb - col
+        mix *= haze
+        col += mix
+        _copy_where(fr.colour[:, g0:g1], col, gm)
+        _copy_where(fr.depth[g0:g1], t, gm)
+        if self.world.targets:
+            fr.ground_t = np.full(self.layout.n, np.nan, np.float32)
+            _copy_where(fr.ground_t[g0:g1], t, gm)
 
-    def _draw_sky(self, fr: _Frame, si: np.ndarray) -> None:
-        if si.size == 0:
+    def _draw_sky(self, fr: _Frame, sky_mask: np.ndarray) -> None:
+        """The sky, written over the span of the sky pixels (the ground drawn after it
+        overwrites the ground pixels of the horizon band)."""
+        s0, s1 = _span(sky_mask)
+        if s0 >= s1:
             return
         sky, sun = self.world.sky, self.world.sun
-        b = _take(fr.B, si)
-        up = -b[2]
-        s = 1.0 - np.clip(up, 0.0, 1.0)
-        g = 1.0 - s * s * s
-        zen = np.asarray(sky.zenith_rgb, np.float32)[:, None]
-        hor = np.asarray(sky.horizon_rgb, np.float32)[:, None]
-        col = hor + (zen - hor) * g
+        B = fr.B
+        up = np.negative(B[2, s0:s1])
+        s = np.clip(up, 0.0, 1.0)
+        np.subtract(1.0, s, out=s)
+        g = s * s
+        g *= s
+        np.subtract(1.0, g, out=g)
+        col = fr.colour[:, s0:s1]
+        np.multiply(self._zen_minus_hor, g, out=col)
+        col += self._hor_rgb
 
-        # Clouds on a flat layer.
-        cl = np.nonzero(up > 0.03)[0]
-        if cl.size:
-            bu = _take(b, cl)
-            upc = _take(up, cl)
-            k = np.float32(sky.cloud_height_m / self.sky_tex.cloud_texel_m) / upc
-            size = np.float32(self.sky_tex.cloud.shape[0])
-            x = bu[1] * k
-            y = bu[0] * -k
-            x -= np.floor(x * (1.0 / size)) * size
-            y -= np.floor(y * (1.0 / size)) * size
-            c = _remap_flat(self.sky_tex.cloud, x - 0.5, y - 0.5, cv2.BORDER_WRAP).T
-            dens = c[0] * _smoothstep(0.03, 0.2, upc)
-            cloud_rgb = np.asarray(sky.cloud_rgb, np.float32)[:, None] * c[1]
-            cur = _take(col, cl)
-            _put(col, cl, cur + (cloud_rgb - cur) * dens)
+        # Clouds on a flat layer (where up <= 0.03 the density is 0: exactly no change).
+        upc = np.maximum(up, np.float32(0.03))
+        k = np.float32(sky.cloud_height_m / self.sky_tex.cloud_texel_m) / upc
+        size = np.float32(self.sky_tex.cloud.shape[0])
+        x, y = self._maps.coords(s1 - s0)
+        np.multiply(B[1, s0:s1], k, out=x)
+        np.negative(k, out=k)
+        np.multiply(B[0, s0:s1], k, out=y)
+        for v in (x, y):
+            wrap = v * (1.0 / size)
+            np.floor(wrap, out=wrap)
+            wrap *= size
+            v -= wrap
+            v -= 0.5
+        c = self._maps.sample(self.sky_tex.cloud, cv2.BORDER_WRAP).T
+        dens = _smoothstep(0.03, 0.2, upc)
+        dens *= c[0]
+        cloud = self._cloud_rgb * c[1]
+        cloud -= col
+        cloud *= dens
+        col += cloud
 
-        # Sun disc and glow (the glow fades to zero 26° from the sun).
-        cosg = self._L.astype(np.float32) @ b
+        # Sun disc and glow (the glow fades to zero 26° from the sun). cos γ is computed
+        # as it always was, on the gathered sky bearings: a matrix-vector product's last
+        # bits depend on the array it is given.
+        si = np.nonzero(sky_mask)[0]
+        cosg = self._L32 @ _take(B, si)
         near = np.nonzero(cosg > math.cos(0.45))[0]
         if near.size:
             gamma = np.arccos(np.clip(_take(cosg, near), -1.0, 1.0))
             wide = np.maximum(1.0 - gamma * (1.0 / 0.45), 0.0)
             glow = 0.35 * np.exp(gamma * (-1.0 / 0.06)) + 0.15 * wide * wide
             rho = math.radians(sun.angular_radius_deg)
-            disc = np.clip(
-                (rho - gamma) / _take(self.layout.pix_rad, _take(si, near)) + 0.5, 0.0, 1.0
-            )
+            pn = _take(si, near)
+            disc = np.clip((rho - gamma) / _take(self.layout.pix_rad, pn) + 0.5, 0.0, 1.0)
             sun_rgb = np.array([1.0, 0.97, 0.9], np.float32)[:, None]
-            _put(col, near, _take(col, near) + sun_rgb * (glow + 2.0 * disc))
+            loc = pn - s0
+            _put(col, loc, _take(col, loc) + sun_rgb * (glow + 2.0 * disc))
 
         # Distant hills along the horizon.
-        hill_top = float(np.sin(self.sky_tex.hill_el_rad.max()))
-        hl = np.nonzero(up < hill_top)[0]
+        hl = np.nonzero((up < self._hill_top) & sky_mask[s0:s1])[0]
         if hl.size:
-            bh = _take(b, hl)
+            bh = _take(B[:, s0:s1], hl)
             az = np.arctan2(bh[1], bh[0])
             top = np.interp(az, self.sky_tex.hill_az_rad, self.sky_tex.hill_el_rad).astype(
                 np.float32
             )
             el = np.arcsin(np.clip(_take(up, hl), -1.0, 1.0))
             below = top - el
-            cover = np.clip(below / _take(self.layout.pix_rad, _take(si, hl)) + 0.5, 0.0, 1.0)
+            cover = np.clip(below / self.layout.pix_rad[s0:s1][hl] + 0.5, 0.0, 1.0)
             shade = np.clip(1.0 - below * (1.0 / 0.05), 0.6, 1.0)
-            hill = np.asarray(sky.hill_rgb, np.float32)[:, None] * (0.6 * shade) + 0.4 * hor
+            hill = (
+                np.asarray(sky.hill_rgb, np.float32)[:, None] * (0.6 * shade) + 0.4 * self._hor_rgb
+            )
             cur = _take(col, hl)
             _put(col, hl, cur + (hill - cur) * cover)
-        _put(fr.colour, si, col)
 
     # ---------------------------------------------------------------------------------
     # Objects
@@ -1134,16 +1314,22 @@ class Renderer:
         return np.asarray(out[r, cols])
 
     def _target_shadows(
-        self, fr: _Frame, targets: list[tuple[FloatArray, SolidTarget]], t_s: float
-    ) -> np.ndarray:
-        """(N,) sunlit fraction left by the non-spherical targets' shadows.
+        self,
+        fr: _Frame,
+        targets: list[tuple[FloatArray, SolidTarget]],
+        t_s: float,
+        hits: _GroundHits,
+    ) -> np.ndarray | None:
+        """Sunlit fraction left by the non-spherical targets' shadows on the ground span
+        (None where no target shades any ground pixel).
 
         A convex solid's shadow on the ground is the convex hull of its points projected
         along the sun: a polygon; coverage is ``clip(-d / w + ½, 0, 1)`` with ``d`` the
         signed distance to the polygon (the largest over its edges), ``w`` the pixel's
         ground footprint or the sun's penumbra, whichever is wider.
         """
-        sunlit = np.ones(self.layout.n, np.float32)
+        g0, _, n_all, e_all, foot_all = hits
+        sunlit: np.ndarray | None = None
         L = self._L
         if L[2] > -1e-3:
             return sunlit
@@ -1160,7 +1346,8 @@ class Renderer:
             pts = _outline_points_ned(target, centre, target.R_ned_from_obj(t_s))
             ground_pts = pts[:, :2] - (pts[:, 2] / L[2])[:, None] * L[None, :2]
             hull = _convex_hull_2d(ground_pts)
-            _, n, e, foot = self._ground_hits(fr, idx)
+            loc = idx - g0
+            n, e, foot = _take(n_all, loc), _take(e_all, loc), _take(foot_all, loc)
             mid = hull.mean(axis=0)
             reach = float(np.hypot(*(hull - mid).T).max())
             rise = max(-float(centre[2]), 0.0) / -float(L[2])
@@ -1168,7 +1355,7 @@ class Renderer:
             near = np.nonzero(np.hypot(n - mid[0], e - mid[1]) < reach + foot + pen)[0]
             if near.size == 0:
                 continue
-            idx, n, e, foot = _take_all(near, idx, n, e, foot)
+            loc, n, e, foot = _take_all(near, loc, n, e, foot)
             a = hull
             bvec = np.roll(hull, -1, axis=0) - hull
             length = np.maximum(np.hypot(bvec[:, 0], bvec[:, 1]), 1e-12)
@@ -1179,7 +1366,9 @@ class Renderer:
             dmax = d.max(axis=1)
             width = np.maximum(foot.astype(np.float64), pen)
             cover = np.clip(-dmax / width + 0.5, 0.0, 1.0)
-            sunlit[idx] *= (1.0 - cover).astype(np.float32)
+            if sunlit is None:
+                sunlit = np.ones(n_all.shape[0], np.float32)
+            sunlit[loc] *= (1.0 - cover).astype(np.float32)
         return sunlit
 
 

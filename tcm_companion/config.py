@@ -3,7 +3,9 @@
 Each TOML table maps onto one dataclass of the core by field name (``[classifier]`` →
 :class:`~tcm_companion.core.classify.ClassifierConfig`, …). Unknown keys are errors (a
 typo must not silently fall back to a default), values are type-checked against the
-field's annotation, and an angle field ``x_rad`` may be given in degrees as ``x_deg``.
+field's annotation, an angle field ``x_rad`` may be given in degrees as ``x_deg``, and
+every numeric value is checked against its valid range in :data:`RANGES` before the
+dataclass is built, whatever set it (file, environment, ``--set``).
 """
 
 from __future__ import annotations
@@ -27,7 +29,15 @@ from .service.endpoint_setup import MavlinkSettings
 
 
 class ConfigError(ValueError):
-    """A configuration value is missing, unknown or of the wrong type."""
+    """A configuration value is missing, unknown, of the wrong type or out of range.
+
+    ``key``: the dotted key at fault as it was written (``"classifier.tcm_threshold"``)
+    when the error is about one value, so that the override that set it can be named.
+    """
+
+    def __init__(self, message: str, key: str = "") -> None:
+        super().__init__(message)
+        self.key = key
 
 
 @dataclass(frozen=True)
@@ -55,8 +65,9 @@ class SimConfig:
             raise ValueError(
                 f"scenario must be one of {', '.join(SCENARIO_NAMES)}, got {self.scenario!r}"
             )
-        if self.telemetry_noise < 0 or self.ekf_origin_delay_us < 0:
-            raise ValueError("telemetry_noise and ekf_origin_delay_us must be >= 0")
+        for name in ("telemetry_noise", "ekf_origin_delay_us"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
 
 
 def _default_camera_model() -> CameraModel:
@@ -88,24 +99,35 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
     source_keys = {k: v for k, v in table.items() if k not in _MODEL_KEYS and k != "name"}
     name = table.get("name", "camera0")
     if not isinstance(name, str) or not name:
-        raise ConfigError(f"{where}.name must be a non-empty string, got {name!r}")
+        raise ConfigError(f"{_key_at(where, 'name')} must be a non-empty string, got {name!r}")
     if model_keys:
-        defaults = {"model": "equirectangular", "width": 360, "height": 220}
+        merged = {"model": "equirectangular", "width": 360, "height": 220, **model_keys}
+        # Ranges first (numbers only: camera_from_dict reports a wrong type).
+        given = {k: (k, v, v) for k, v in model_keys.items()}
+        _check_ranges("camera", where, given, merged.get, list(merged))
         try:
-            model = camera_from_dict({**defaults, **model_keys}, where=where)
+            model = camera_from_dict(merged, where=where)
         except CameraModelError as exc:
-            raise ConfigError(str(exc)) from None
+            # camera_from_dict writes "<where>.key"; the other messages "<where> key".
+            msg = str(exc).replace(f"{where}.", _key_at(where, ""), 1)
+            raise ConfigError(msg) from None
     else:
         model = _default_camera_model()
     try:
         source = build_dataclass(CameraSettings, source_keys, where)
     except ConfigError as exc:
-        # CameraSettings names its fields "camera.x"; say where they were written.
-        raise ConfigError(str(exc).replace(f"{where}: camera.", f"{where}.")) from None
+        # CameraSettings names its fields "camera.x" (and "camera.front.x"); say where
+        # they were written, once.
+        def at(m: re.Match[str]) -> str:
+            return _key_at(_table_at(where, m[1]) if m[1] else where, "")
+
+        msg = re.sub(rf"{re.escape(where)}: camera\.(?:(front|back)\.)?", at, str(exc), count=1)
+        raise ConfigError(msg, exc.key) from None
     if source.source == "dual_fisheye" and model.model_name != "equirectangular":
         raise ConfigError(
-            f'{where}.model must be "equirectangular" for source = "dual_fisheye" '
-            "(the two fisheyes are stitched into a panorama)"
+            f'{_key_at(where, "model")} must be "equirectangular" for source = "dual_fisheye" '
+            "(the two fisheyes are stitched into a panorama)",
+            "camera.model",
         )
     return CameraConfig(model=model, source=source, name=name)
 
@@ -119,6 +141,454 @@ class AppConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
+
+
+# --------------------------------------------------------------------------------------
+# Valid ranges
+#
+# Every numeric setting of every table has one entry in RANGES, keyed "table.key" as the
+# user writes it (pipeline stages under their own table names, nested tables dotted:
+# "mavlink.endpoint.attitude_rate_hz", "camera.front.fx"; angles under their _rad name).
+# tests/test_config_ranges.py checks that every numeric field reachable from AppConfig
+# has one, and config.toml states the same range in each setting's comment.
+
+
+_INF = ("inf", "∞")
+
+
+@dataclass(frozen=True)
+class Range:
+    """The valid values of one numeric setting: ``lo``..``hi`` (``None``: unbounded),
+    each bound inclusive unless ``*_open``, in ``unit`` ("" = dimensionless); ``also``:
+    values valid outside it (``exposure = -1``: auto); ``hi_key``: the upper bound is
+    another key of the same table (``cx`` within ``[0, width]``). For a list, the range of
+    every item. Written as text, :func:`Range.parse` of e.g. ``"(0, 10] s"``."""
+
+    lo: float | None
+    hi: float | None
+    unit: str = ""
+    lo_open: bool = False
+    hi_open: bool = False
+    also: tuple[float, ...] = ()
+    hi_key: str = ""
+
+    @classmethod
+    def parse(cls, spec: str) -> Range:
+        """``"[0, 2]"``, ``"(0, 10] s"``, ``"[0, pi/2) rad"``, ``"[0, inf) m"``,
+        ``"[0, width] px"``, ``"-1 or (0, 100000] × 100 µs"``."""
+        m = re.fullmatch(
+            r"(?:(?P<also>[-+0-9.e_]+) or )?(?P<lb>[\[(])(?P<lo>[^,]+), *(?P<hi>[^\])]+)"
+            r"(?P<rb>[\])]) *(?P<unit>.*)",
+            spec,
+        )
+        if m is None:
+            raise ValueError(f"bad range {spec!r}")
+        hi_key = (
+            m["hi"] if re.fullmatch(r"[a-z_]+", m["hi"]) and m["hi"] not in ("inf", "pi") else ""
+        )
+        return cls(
+            lo=_bound(m["lo"]),
+            hi=None if hi_key else _bound(m["hi"]),
+            unit=m["unit"],
+            lo_open=m["lb"] == "(",
+            hi_open=m["rb"] == ")",
+            also=(float(m["also"]),) if m["also"] else (),
+            hi_key=hi_key,
+        )
+
+    def admits(self, x: float, hi: float | None = None, *, eps: float = 0.0) -> bool:
+        """Whether ``x`` is valid; ``hi``: the value of ``hi_key``. ``eps``: how far a
+        value converted from degrees may round past a closed bound (or must stay inside
+        an open one)."""
+        if x in self.also:
+            return True
+        top = hi if self.hi_key else self.hi
+        if self.lo is not None:
+            e = eps * max(1.0, abs(self.lo))
+            if not (x > self.lo + e if self.lo_open else x >= self.lo - e):
+                return False
+        if top is not None:
+            e = eps * max(1.0, abs(top))
+            if not (x < top - e if self.hi_open else x <= top + e):
+                return False
+        return True
+
+    def text(self, *, deg: bool = False, hi: float | None = None) -> str:
+        """``"(0, 10] s"``; ``deg``: an angle range in radians shown in degrees; ``hi``:
+        the value of ``hi_key``, shown as ``width = 640``."""
+        unit = "deg" if deg else self.unit
+
+        def show(b: float | None, sign: str) -> str:
+            if b is None:
+                return f"{sign}∞"
+            if deg:
+                return _num(math.degrees(b))
+            return _rad(b) if self.unit == "rad" else _num(b)
+
+        if self.hi_key:
+            top = self.hi_key if hi is None else f"{self.hi_key} = {_num(hi)}"
+        else:
+            top = show(self.hi, "")
+        interval = (
+            f"{'(' if self.lo_open or self.lo is None else '['}{show(self.lo, '-')}, "
+            f"{top}{')' if self.hi_open or (self.hi is None and not self.hi_key) else ']'}"
+        )
+        also = "".join(f"{_num(a)} or " for a in self.also)
+        return f"{also}{interval}{' ' + unit if unit else ''}"
+
+    def must(self, *, deg: bool = False, hi: float | None = None) -> str:
+        """The end of an error message: ``"in [0, 2] (dimensionless)"``."""
+        text = self.text(deg=deg, hi=hi)
+        if self.also:
+            head, _, rest = text.partition(" or ")
+            text = f"{head} or in {rest}"
+        else:
+            text = f"in {text}"
+        return text if deg or self.unit else f"{text} (dimensionless)"
+
+
+@dataclass(frozen=True)
+class PerItem:
+    """The ranges of the items of a fixed-length list, by position (``sim_static_balls``:
+    each ball's ``[n_m, e_m, d_m, radius_m]``)."""
+
+    items: tuple[tuple[str, Range], ...]
+
+    def text(self) -> str:
+        return ", ".join(f"{name} {r.text()}" for name, r in self.items)
+
+
+RangeSpec = Range | PerItem
+
+
+def _bound(tok: str) -> float | None:
+    tok = tok.strip()
+    if tok.lstrip("+-") in _INF:
+        return None
+    m = re.fullmatch(r"(-?)(\d*)(?:pi|π)(?:/(\d+))?", tok)
+    if m:
+        k = float(m[2] or 1) / float(m[3] or 1)
+        return -k * math.pi if m[1] else k * math.pi
+    return float(tok)
+
+
+def _num(x: float) -> str:
+    """A number as a person would write it: ``2``, ``0.09``, ``1e-09``, ``10000000``."""
+    if float(x).is_integer() and abs(x) < 1e16:
+        return str(int(x))
+    return f"{x:.6g}"
+
+
+def _rad(x: float) -> str:
+    """A bound in radians, as a fraction of π when it is one (``π/2``)."""
+    for n in (1, 2, 4):
+        k = x * n / math.pi
+        if k and abs(k - round(k)) < 1e-12:
+            k_int = round(k)
+            head = "-" if k_int < 0 else ""
+            head += "π" if abs(k_int) == 1 else f"{abs(k_int)}π"
+            return head if n == 1 else f"{head}/{n}"
+    return _num(x)
+
+
+def _ranges(table: str, specs: dict[str, str]) -> dict[str, RangeSpec]:
+    return {f"{table}.{key}": Range.parse(spec) for key, spec in specs.items()}
+
+
+def _colour_target(table: str) -> dict[str, RangeSpec]:
+    """The colour keys of ``[detection]`` and of each ``[[detection.targets]]``."""
+    return _ranges(
+        table,
+        {
+            # The target's HSV hue (0 red, 120 green, 240 blue); negative: the other way
+            # round the colour wheel (-20 = 340).
+            "hue_deg": "[-360, 360] deg",
+            # Signed degrees from hue_deg; beyond ±90° it is another colour altogether.
+            "seed_hue_deg": "[-90, 90] deg",
+            "seed_min_saturation": "[0, 1]",  # fractions of HSV's S and V
+            "seed_min_value": "[0, 1]",
+            "grow_hue_deg": "[-90, 90] deg",
+            "grow_min_saturation": "[0, 1]",  # and at most the seed's
+            "grow_min_value": "[0, 1]",
+        },
+    )
+
+
+def _camera_lens(table: str) -> dict[str, RangeSpec]:
+    """The lens keys of ``[camera]`` (pinhole and fisheye) and of ``[camera.front]``/
+    ``[camera.back]``."""
+    return _ranges(
+        table,
+        {
+            # 16 px: the detector's coarse cells (8 px) and the flow's 9 px windows need a
+            # few of each across; 16384: larger than any camera this runs, and below
+            # OpenCV's limit for the remap that warps and stitches frames (32767 px).
+            "width": "[16, 16384] px",
+            "height": "[16, 16384] px",
+            # At least a pixel: a 1-px focal length already sees ±89.8° across a
+            # 640-px pinhole image; 1e5 px is a 0.4° field of view on 640 px.
+            "fx": "[1, 100000] px",
+            "fy": "[1, 100000] px",
+            # Principal point within the image (scenario convention: width / 2 is the centre).
+            "cx": "[0, width] px",
+            "cy": "[0, height] px",
+            # Calibrated lenses give |k| of order 1 (a wide lens's k3 reaches tens);
+            # beyond 100 is a typo, or another model's coefficients.
+            "dist": "[-100, 100]",
+            # Roll, pitch, yaw: any rotation; beyond a whole turn is a typo.
+            "mount_rpy_deg": "[-360, 360] deg",
+        },
+    )
+
+
+#: The valid range of every numeric setting, keyed ``"table.key"`` (see the comment above).
+RANGES: dict[str, RangeSpec] = {
+    **_colour_target("detection"),
+    **_colour_target("detection.targets"),
+    **_ranges(
+        "detection",
+        {
+            "min_seed_px": "[1, inf) px",
+            "min_area_px": "[0, inf) px",
+            "min_angular_radius_rad": "[0, pi/2] rad",  # a sphere's angular radius ≤ 90°
+            "max_detections": "[1, 1000]",
+            "rim_width_px": "[1, 100] px",
+            "rim_width_out_px": "[1, 100] px",
+            "colour_sigma_px": "(0, 100] px",
+            "refine_passes": "[0, 100]",
+            "refine_min_shift_px": "[0, inf) px",
+            # Colour distance in 0..255 units: at most 255·√3 ≈ 442 (black to white).
+            "min_unmix_contrast": "[0, 442]",
+            "coarse_cell_px": "[2, 256] px",
+            "black_level": "[0, 255]",  # 8-bit grey level
+            "min_score": "[0, 1]",  # a detector's confidence
+            # Pushed boxes belong to the frame captured within this of theirs; a second
+            # is several frames at any rate.
+            "boxes_time_tolerance_s": "[0, 1] s",
+            # Width, height: at least one 32-px stride of the YOLO network.
+            "onnx_input_size": "[32, 8192] px",
+            "onnx_nms_iou": "(0, 1]",  # 0 would suppress every overlap
+        },
+    ),
+    # Memberships are clipped to [low, high]: the clip must hold the whole of [0, 1].
+    "detection.membership_clip": PerItem(
+        (("low", Range.parse("[-1, 0]")), ("high", Range.parse("[1, 2]")))
+    ),
+    **_ranges(
+        "tracking",
+        {
+            "gate_rad": "[0, pi] rad",
+            "gate_radius_factor": "[0, inf) radii",
+            "max_log_size_change": "(0, inf)",  # |ln(α_new/α_old)|; 0 refuses any change
+            "max_misses": "[0, 1000] frames",
+            # Histories are sized for 60 fps (timebase.MAX_FRAME_RATE_HZ): 3600 per track.
+            "history_s": "(0, 60] s",
+        },
+    ),
+    **_ranges(
+        "flow",
+        {
+            "n_points": "[1, 10000] points",
+            "win_size_px": "[3, 99] px",
+            "max_level": "[0, 8] levels",  # 2^8: a 256-px move per frame
+            "max_level_predicted": "[0, 8] levels",
+            "max_iterations": "[1, 1000]",
+            "epsilon_px": "[0, 10] px",  # 0: always max_iterations
+            "fb_threshold_px": "(0, 100] px",
+            "max_patch_error": "(0, 255] grey levels",  # mean |difference| of 8-bit levels
+            "fb_every": "[1, 100] frames",
+            "min_eigen": "[0, inf) (grey levels/px)²",
+            "sky_elevation_rad": "[-pi/2, pi/2] rad",
+            "max_history": "[2, 10000] frames",
+            "exclude_margin_px": "[0, 1000] px",
+            "reseed_fraction": "(0, 1]",
+            "reseed_interval": "[1, 1000] frames",
+            "cull_cell_fraction": "[0, 1]",  # 0: never
+            "downscale": "[0, 16]",  # 0: automatic
+        },
+    ),
+    **_ranges(
+        "egomotion",
+        {
+            "n_hypotheses": "[1, 10000]",
+            # Bearing errors: beyond 90° every point is an inlier of any direction.
+            "ransac_threshold_rad": "(0, pi/2] rad",
+            "inlier_threshold_rad": "(0, pi/2] rad",
+            "bearing_sigma_rad": "(0, pi/2] rad",
+            "systematic_rad": "[0, pi/2] rad",
+            "min_parallax_rad": "[0, pi] rad",
+            "restart_ratio": "[0, inf)",
+            "min_inliers": "[2, 10000] points",  # a direction needs two bearing pairs
+            "min_inlier_ratio": "[0, 1]",
+            "rotation_prior_rad": "[0, pi] rad",  # 0: no rotation estimated
+            "refine_iterations": "[1, 100]",
+            "max_refine_iterations": "[1, 100]",
+            "step_tolerance_rad": "[0, pi] rad",
+            "max_sigma_rad": "(0, pi] rad",
+            "position_sigma_m": "[0, 100] m",
+            "fuse_gate": "(0, inf) σ",
+        },
+    ),
+    **_ranges(
+        "classifier",
+        {
+            # Histories hold the longest interval at 60 fps: 10 s keeps them at 600 frames
+            # (the paper: 1 s; the GCS parameter TCM_INTERVAL_S allows 0.1..2 s).
+            "interval_s": "(0, 10] s",
+            "extra_intervals_s": "(0, 10] s",
+            "hold_s": "[0, 10] s",
+            "min_interval_s": "(0, 10] s",
+            "interval_tolerance_s": "[0, 10] s",
+            # δ = |R_img - R_geo|, of ratios near 1: as TCM_THRESH, 0..2 (above 2 nothing
+            # would ever be moving).
+            "tcm_threshold": "[0, 2]",
+            "ecm_threshold_rad": "[0, pi/2] rad",  # Ω is at most 90°
+            "bsm_threshold": "[0, inf) px",
+            # θ from the translation axis; head-on is θ < min_theta or > π - min_theta,
+            # so at 90° everything would be head-on.
+            "min_theta_rad": "[0, pi/2) rad",
+            "min_baseline_m": "[0, inf) m",  # 0: off
+            "min_flow_parallax_rad": "[0, pi] rad",  # 0: off
+            "hover_max_baseline_m": "[0, inf) m",
+            "max_disparity_sigma": "(0, inf)",  # 0 would refuse every pair
+            "min_range_parallax_rad": "[0, pi] rad",
+        },
+    ),
+    **_ranges(
+        "ttc",
+        {
+            "window_s": "(0, 10] s",
+            "min_span_s": "[0, 10] s",  # and below window_s
+            "min_samples": "[3, 1000] samples",  # a slope and its spread need three
+            "max_ttc_s": "(0, 3600] s",
+            "min_significance": "[0, inf)",
+            "collision_miss_radii": "[0, inf) radii",
+            "collision_max_ttc_s": "[0, 3600] s",
+        },
+    ),
+    **_ranges(
+        "bsm",
+        {
+            "pixel_threshold": "[0, 255] grey levels",
+            "window_radius_factor": "[0, inf) radii",
+            "ground_d_m": "[-10000, 10000] m",  # NED down: from below sea to above Everest
+            "min_window_px": "[0, 1000] px",
+        },
+    ),
+    **_ranges("replay", {"telemetry_wait_us": "[0, 1000000] µs"}),
+    **_ranges("mavlink", {"signing_link_id": "[0, 255]"}),  # a uint8 of the signature
+    **_ranges(
+        "mavlink.endpoint",
+        {
+            "component_id": "[1, 255]",  # 0 is the broadcast id
+            "default_system_id": "[1, 255]",
+            "heartbeat_interval_us": "[10000, 10000000] µs",
+            "autopilot_timeout_us": "[100000, 60000000] µs",
+            # Autopilots stream at most at their main loop's rate (ArduCopter 400 Hz).
+            "attitude_rate_hz": "(0, 500] Hz",
+            "position_rate_hz": "(0, 500] Hz",
+            # Periods: 10 ms (100 Hz) to a minute.
+            "request_retry_us": "[10000, 60000000] µs",
+            "rate_check_us": "[10000, 60000000] µs",
+            "timesync_interval_us": "[10000, 60000000] µs",
+            "timesync_fast_interval_us": "[10000, 60000000] µs",
+            "health_interval_us": "[10000, 60000000] µs",
+            "obstacle_interval_us": "[10000, 60000000] µs",
+            "fresh_frame_us": "[1000, 60000000] µs",
+            "statustext_min_interval_us": "[10000, 60000000] µs",  # paces the radio link
+            "statustext_repeat_us": "[0, 3600000000] µs",
+            "collision_clear_us": "[0, 60000000] µs",
+            "statustext_queue": "[1, 1000] texts",
+        },
+    ),
+    **_ranges(
+        "daemon",
+        {
+            "attitude_lead_max_us": "[1, 1000000] µs",
+            "attitude_wait_max_us": "[1, 1000000] µs",  # and >= attitude_lead_max_us
+            "camera_timeout_us": "[10000, 60000000] µs",
+            "attitude_timeout_us": "[10000, 60000000] µs",
+            "position_timeout_us": "[10000, 60000000] µs",
+            "health_interval_us": "[10000, 60000000] µs",
+            "rebuild_after_errors": "[1, 100000] frames",
+            "latency_window": "[1, 100000] frames",
+            "opencv_threads": "[0, 1024] threads",  # 0: OpenCV's default
+            "gil_switch_interval_us": "[1, 1000000] µs",
+        },
+    ),
+    **_ranges(
+        "sim",
+        {
+            "seed": "[0, 4294967295]",  # NumPy's legacy seeds are 32-bit
+            "telemetry_noise": "[0, 100]",
+            "ekf_origin_delay_us": "[0, 600000000] µs",
+        },
+    ),
+    **_ranges(
+        "camera",
+        {
+            "azimuth_min_deg": "[-360, 360] deg",  # and less than azimuth_max_deg
+            "azimuth_max_deg": "[-360, 360] deg",  # within 360° of azimuth_min_deg
+            "elevation_max_deg": "[-90, 90] deg",
+            "elevation_min_deg": "[-90, 90] deg",
+            "fps": "(0, 1000] fps",
+            "exposure": "-1 or (0, 100000] × 100 µs",  # V4L2 exposure_absolute; -1: auto
+            "sim_noise_dn": "[0, 255] DN",
+            "sim_seed": "[0, 4294967295]",
+            "sim_contact_s": "[1, 120] s",
+            "sim_ball_speed_mps": "[0, 50] m/s",
+            "sim_side_deg": "[-180, 180] deg",
+            "sim_heading_deg": "[-360, 360] deg",
+            "sim_ball_radius_m": "(0, 10] m",
+        },
+    ),
+    "camera.sim_static_balls": PerItem(
+        (
+            ("n_m", Range.parse("[-10000, 10000] m")),
+            ("e_m", Range.parse("[-10000, 10000] m")),
+            ("d_m", Range.parse("[-10000, 10000] m")),
+            ("radius_m", Range.parse("(0, 10] m")),
+        )
+    ),
+    **_camera_lens("camera"),
+    **_camera_lens("camera.front"),
+    **_camera_lens("camera.back"),
+    **_ranges(
+        "logging",
+        {
+            "jpeg_quality": "[1, 100]",
+            "queue_items": "[1, 1000000] items",
+            "chunk_size_bytes": "[1024, 1073741824] bytes",
+            "flush_interval_s": "(0, 60] s",
+            "rotate_size_mb": "(0, 1000000] MB",
+            "rotate_interval_s": "(0, 604800] s",  # a week
+            "min_free_mb": "[0, 1000000] MB",
+        },
+    ),
+}
+
+
+def _stage_tables() -> dict[type, str]:
+    hints = typing.get_type_hints(PipelineConfig)
+    return {
+        hints[f.name]: f.name
+        for f in dataclasses.fields(PipelineConfig)
+        if dataclasses.is_dataclass(hints[f.name])
+    }
+
+
+#: The :data:`RANGES` table each dataclass is read from (nested ones by their parent).
+_RANGE_TABLES: dict[type, str] = {
+    PipelineConfig: "",  # its stages are tables of their own: "classifier", ...
+    **_stage_tables(),
+    ReplayConfig: "replay",
+    MavlinkSettings: "mavlink",
+    typing.get_type_hints(MavlinkSettings)["endpoint"]: "mavlink.endpoint",
+    DaemonConfig: "daemon",
+    SimConfig: "sim",
+    CameraSettings: "camera",
+    LoggingConfig: "logging",
+}
 
 
 def _describe(tp: Any) -> str:
@@ -173,19 +643,44 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:
     return value
 
 
-def build_dataclass(cls: type, table: Any, where: str) -> Any:
-    """Instantiate dataclass ``cls`` from a TOML table, defaults for absent keys."""
+def _key_at(where: str, key: str) -> str:
+    """Where ``key`` of the table at ``where`` is: ``"c.toml: [daemon] state_dir"`` (a
+    table given as ``[name]``) or ``"camera.fps"`` (a bare name, for other callers)."""
+    return f"{where} {key}" if where.endswith("]") else f"{where}.{key}"
+
+
+def _table_at(where: str, key: str) -> str:
+    """Where the nested table ``key`` is: ``"c.toml: [mavlink.endpoint]"``."""
+    return f"{where[:-1]}.{key}]" if where.endswith("]") else f"{where}.{key}"
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def build_dataclass(cls: type, table: Any, where: str, ranges_key: str | None = None) -> Any:
+    """Instantiate dataclass ``cls`` from a TOML table, defaults for absent keys.
+
+    Every value is type-checked, then range-checked against :data:`RANGES` under
+    ``ranges_key`` (default: the table ``cls`` is read from, e.g. ``"classifier"``; no
+    check for a class of no table), and only then is the dataclass built (whose own
+    checks are left with the relations between fields).
+    """
     if not isinstance(table, dict):
         raise ConfigError(f"{where} must be a table")
+    prefix = _RANGE_TABLES.get(cls) if ranges_key is None else ranges_key
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     kwargs: dict[str, Any] = {}
+    given: dict[str, tuple[str, Any, Any]] = {}  # field -> (key, value) as written, value
     for key, value in table.items():
         name, val = key, value
         if key not in fields and key.endswith("_deg") and f"{key[:-4]}_rad" in fields:
             name = f"{key[:-4]}_rad"
             if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ConfigError(f"{where}.{key} must be a number of degrees, got {value!r}")
+                raise ConfigError(
+                    f"{_key_at(where, key)} must be a number of degrees, got {value!r}"
+                )
             val = math.radians(value)
         if name not in fields:
             known = ", ".join(sorted(fields))
@@ -194,16 +689,156 @@ def build_dataclass(cls: type, table: Any, where: str) -> Any:
             raise ConfigError(f"{where}: {name} given twice (as _rad and _deg)")
         tp = hints[name]
         if dataclasses.is_dataclass(tp):
-            kwargs[name] = build_dataclass(tp, val, f"{where}.{key}")  # type: ignore[arg-type]
+            nested = None if prefix is None else _join(prefix, key)
+            kwargs[name] = build_dataclass(tp, val, _table_at(where, key), nested)  # type: ignore[arg-type]
         else:
-            kwargs[name] = _coerce(val, tp, f"{where}.{key}")
+            kwargs[name] = _coerce(val, tp, _key_at(where, key))
+            given[name] = (key, kwargs[name], value)
+            if prefix is not None and _is_table_list(tp) and isinstance(val, list):
+                # [[table.key]]: each table's values against RANGES["table.key.x"]
+                # (built by the dataclass itself, which checks their types).
+                for i, item in enumerate(val):
+                    if isinstance(item, dict):
+                        items = {k: (k, v, v) for k, v in item.items()}
+                        at = _table_at(where, f"{key}[{i}]")
+                        _check_ranges(_join(prefix, key), at, items, item.get, list(item))
+    if prefix is not None:
+
+        def lookup(name: str) -> Any:
+            if name in kwargs:
+                return kwargs[name]
+            f = fields.get(name)
+            return None if f is None or f.default is dataclasses.MISSING else f.default
+
+        _check_ranges(prefix, where, given, lookup, list(fields))
     try:
         return cls(**kwargs)
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def _pipeline_table(doc: dict[str, Any]) -> dict[str, Any]:
+def _is_number(x: object) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _is_table_list(tp: Any) -> bool:
+    """``tuple[SomeDataclass, ...]``: a TOML array of tables."""
+    args = typing.get_args(tp)
+    return (
+        typing.get_origin(tp) is tuple
+        and len(args) == 2
+        and args[1] is Ellipsis
+        and dataclasses.is_dataclass(args[0])
+    )
+
+
+def _leaves(value: Any, index: str = "") -> typing.Iterator[tuple[str, float]]:
+    """The numbers of a value and their indices (``"[0][3]"``); other items are skipped
+    (their type is someone else's error)."""
+    if _is_number(value):
+        yield index, float(value)
+    elif isinstance(value, list | tuple):
+        for i, v in enumerate(value):
+            yield from _leaves(v, f"{index}[{i}]")
+
+
+def _first_bad(
+    spec: RangeSpec, value: Any, hi: float | None, deg: bool
+) -> tuple[str, float, Range, str] | None:
+    """The first number of ``value`` outside ``spec``: (index, number, its range, label)."""
+    if isinstance(spec, PerItem):
+        if not isinstance(value, list | tuple):
+            return None
+        # One list of positions (membership_clip), or a list of them (sim_static_balls).
+        nested = any(isinstance(v, list | tuple) for v in value)
+        items = [(f"[{i}]", v) for i, v in enumerate(value)] if nested else [("", value)]
+        for index, item in items:
+            for j, (label, r) in enumerate(spec.items):
+                if isinstance(item, list | tuple) and j < len(item) and _is_number(item[j]):
+                    if not r.admits(float(item[j])):
+                        return f"{index}[{j}]", float(item[j]), r, f" ({label})"
+        return None
+    eps = 1e-12 if deg else 0.0  # a bound written in degrees may round in radians
+    for index, x in _leaves(value):
+        if not spec.admits(x, hi, eps=eps):
+            return index, x, spec, ""
+    return None
+
+
+def _check_ranges(
+    prefix: str,
+    where: str,
+    given: dict[str, tuple[str, Any, Any]],
+    lookup: typing.Callable[[str], Any],
+    names: list[str],
+) -> None:
+    """Refuse the first value of ``given`` (name -> (key as written, value, value as
+    written)) outside its range in :data:`RANGES` under ``prefix``, naming that key.
+
+    ``lookup(name)`` is the value a field will have (given or default), for ranges bound
+    by another key (``cx`` by ``width``): those are checked after the others, and also
+    when only the other key was given (a default ``cx = 320`` with ``width = 100``).
+    """
+
+    def bound_by(name: str) -> str:
+        spec = RANGES.get(_join(prefix, name))
+        return spec.hi_key if isinstance(spec, Range) else ""
+
+    order = [n for n in given if not bound_by(n)] + [n for n in names if bound_by(n)]
+    for name in order:
+        spec = RANGES.get(_join(prefix, name))
+        if spec is None:
+            continue
+        hi_key = bound_by(name)
+        if name in given:
+            key, value, shown = given[name]
+            default = ""
+        elif hi_key in given:
+            key, value, shown, default = name, lookup(name), lookup(name), " (default)"
+        else:
+            continue
+        hi = None
+        if hi_key:
+            hi = lookup(hi_key)
+            if not _is_number(hi):
+                continue  # the other key's type error is reported instead
+            hi = float(hi)
+        deg = key != name  # x_deg written for field x_rad
+        bad = _first_bad(spec, value, hi, deg)
+        if bad is None:
+            continue
+        index, x, r, label = bad
+        if not index and _is_number(shown):
+            x = shown  # as written (in degrees for x_deg)
+        raise ConfigError(
+            f"{_key_at(where, key)}{index}{label} = {_num(x)}{default} is out of range: "
+            f"must be {r.must(deg=deg, hi=hi)}",
+            _join(prefix, key),
+        )
+
+
+def _range_of(table: str, key: str) -> tuple[str, bool] | None:
+    """The :data:`RANGES` key of ``key`` written in ``[table]``, and whether it was
+    written in degrees for a field in radians."""
+    if f"{table}.{key}" in RANGES:
+        return f"{table}.{key}", False
+    if key.endswith("_deg") and f"{table}.{key[:-4]}_rad" in RANGES:
+        return f"{table}.{key[:-4]}_rad", True
+    return None
+
+
+def describe_range(key: str) -> str | None:
+    """The valid range of setting ``"table.key"`` as config.toml states it
+    (``"classifier.min_theta_deg"`` -> ``"[0, 90) deg"``); None for a key without one."""
+    table, _, name = key.rpartition(".")
+    found = _range_of(table.removeprefix("pipeline."), name)
+    if found is None:
+        return None
+    spec = RANGES[found[0]]
+    return spec.text() if isinstance(spec, PerItem) else spec.text(deg=found[1])
+
+
+def _pipeline_table(doc: dict[str, Any], where: str) -> dict[str, Any]:
     """The flat TOML layout ([pipeline] plus one table per stage) as one nested table."""
     table = dict(doc.get("pipeline", {}))
     stage_names = [
@@ -212,7 +847,7 @@ def _pipeline_table(doc: dict[str, Any]) -> dict[str, Any]:
     for name in stage_names:
         if name in doc:
             if name in table:
-                raise ConfigError(f"[{name}] given both as a table and inside [pipeline]")
+                raise ConfigError(f"{where}: [{name}] given both as a table and inside [pipeline]")
             table[name] = doc[name]
     return table
 
@@ -238,7 +873,12 @@ def _set_dotted(doc: dict[str, Any], path: list[str], value: Any, origin: str) -
         if not isinstance(child, dict):
             raise ConfigError(f"{origin}: {'.'.join(path)}: {part} is not a table")
         node = child
-    node[path[-1]] = value
+    key = path[-1]
+    # An override of x_rad replaces the file's x_deg (and the other way round).
+    for unit, other in (("_rad", "_deg"), ("_deg", "_rad")):
+        if key.endswith(unit):
+            node.pop(f"{key[: -len(unit)]}{other}", None)
+    node[key] = value
 
 
 def apply_overrides(
@@ -303,11 +943,17 @@ def load_config(
         return config_from_dict(doc, where)
     except ConfigError as exc:
         msg = str(exc)
-        for key, origin in origins.items():
-            table, _, name = key.rpartition(".")
-            if f"[{table}]" in msg and re.search(rf"\b{re.escape(name)}\b", msg):
+        if exc.key:  # one value at fault: name what set it, if not the file
+            origin = origins.get(exc.key) or origins.get(f"pipeline.{exc.key}")
+            if origin:
                 msg += f" (set by {origin})"
-        raise ConfigError(msg) from None
+        else:
+            for key, origin in origins.items():
+                table, _, name = key.rpartition(".")
+                tables = {f"[{table}]", f"[{table.removeprefix('pipeline.')}]"}
+                if any(t in msg for t in tables) and re.search(rf"\b{re.escape(name)}\b", msg):
+                    msg += f" (set by {origin})"
+        raise ConfigError(msg, exc.key) from None
 
 
 _TABLES = ("pipeline", "replay", "mavlink", "daemon", "sim", "camera", "logging")
@@ -319,7 +965,9 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
         if key not in known:
             raise ConfigError(f"{where}: unknown table [{key}] (known: {', '.join(sorted(known))})")
     try:
-        pipeline = build_dataclass(PipelineConfig, _pipeline_table(doc), f"{where}: [pipeline]")
+        pipeline = build_dataclass(
+            PipelineConfig, _pipeline_table(doc, where), f"{where}: [pipeline]"
+        )
         tables = {
             name: build_dataclass(cls, doc.get(name, {}), f"{where}: [{name}]")
             for name, cls in (
@@ -335,10 +983,9 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
         msg = str(exc)
         # Report stage keys under their own table name, as the user wrote them.
         for name in (f.name for f in dataclasses.fields(PipelineConfig)):
-            msg = msg.replace(f"[pipeline].{name}.", f"[{name}] ").replace(
-                f"[pipeline].{name}:", f"[{name}]:"
-            )
-        raise ConfigError(msg) from None
+            msg = msg.replace(f"[pipeline.{name}]", f"[{name}]")
+            msg = msg.replace(f"[pipeline.{name}.", f"[{name}.")
+        raise ConfigError(msg, exc.key) from None
     return AppConfig(pipeline=pipeline, camera=camera, **tables)
 
 

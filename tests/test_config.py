@@ -3,17 +3,56 @@
 from __future__ import annotations
 
 import math
+import re
+import tomllib
 from pathlib import Path
 
 import pytest
 
-from tcm_companion.config import AppConfig, ConfigError, config_from_dict, load_config
+from tcm_companion.config import (
+    AppConfig,
+    ConfigError,
+    config_from_dict,
+    describe_range,
+    load_config,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_shipped_config_is_the_builtin_default() -> None:
     assert load_config(ROOT / "config.toml") == AppConfig()
+
+
+def test_shipped_config_states_each_settings_range() -> None:
+    """The comment of every numeric setting in config.toml (its line, and the indented
+    comment lines under it) states the range that the loader checks (config.RANGES)."""
+    table, checked, lines = "", [], (ROOT / "config.toml").read_text(encoding="utf-8").splitlines()
+    for i, line in enumerate(lines):
+        if m := re.match(r"\[([a-z_.]+)\]\s*$", line):
+            table = m[1]
+            continue
+        m = re.match(r"([a-z_0-9]+)\s*=\s*(.*)$", line)
+        if not m:
+            continue
+        key = f"{table}.{m[1]}"
+        value = tomllib.loads(line)[m[1]]
+        numeric = not isinstance(value, str | bool) and (
+            not isinstance(value, list) or all(not isinstance(v, str | bool) for v in value)
+        )
+        expected = describe_range(key)
+        if not numeric:
+            assert expected is None, key
+            continue
+        assert expected is not None, f"{key}: no range in config.RANGES"
+        comment = line.partition("#")[2]
+        for more in lines[i + 1 :]:
+            if not re.match(r"\s+#", more):
+                break
+            comment += " " + more.partition("#")[2].strip()
+        assert expected in comment, f"config.toml {key}: the comment should state {expected}"
+        checked.append(key)
+    assert "classifier.tcm_threshold" in checked and "camera.front.cx" in checked
 
 
 def test_degrees_and_nested_tables() -> None:
@@ -39,19 +78,23 @@ def test_degrees_and_nested_tables() -> None:
             {"classifier": {"interval_s": "long"}},
             r"\[classifier\] interval_s must be a number",
         ),
-        ({"classifier": {"interval_s": 0}}, r"\[classifier\]: interval_s must be > 0"),
-        ({"classifier": {"hold_s": -0.1}}, r"\[classifier\]: hold_s must be >= 0"),
+        (
+            {"classifier": {"interval_s": 0}},
+            r"\[classifier\] interval_s = 0 is out of range: must be in \(0, 10\] s$",
+        ),
+        ({"classifier": {"hold_s": -0.1}}, r"\[classifier\] hold_s = -0.1 is out of range"),
         # The frame counts of earlier versions are refused, not misread.
         ({"classifier": {"frame_interval": 25}}, r"\[classifier\]: unknown key 'frame_interval'"),
         ({"ttc": {"window_frames": 12}}, r"\[ttc\]: unknown key 'window_frames'"),
-        ({"tracking": {"history_s": 0.0}}, r"\[tracking\]: history_s must be > 0"),
+        ({"tracking": {"history_s": 0.0}}, r"\[tracking\] history_s = 0 is out of range"),
         ({"pipeline": {"bsm_enabled": "yes"}}, r"bsm_enabled must be true or false"),
         ({"tracking": {"gate_deg": "wide"}}, r"gate_deg must be a number of degrees"),
         ({"cameras": {}}, r"unknown table \[cameras\]"),
-        ({"camera": {"source": "webcam"}}, r"\[camera\].source must be one of"),
-        ({"camera": {"model": "pinhole", "width": 640}}, r"\[camera\].fx is required"),
-        ({"camera": {"width": -3}}, r"\[camera\].width must be a positive integer"),
-        ({"camera": {"source": "file"}}, r"\[camera\].path must be given"),
+        ({"camera": {"source": "webcam"}}, r"\[camera\] source must be one of"),
+        ({"camera": {"model": "pinhole", "width": 640}}, r"\[camera\] fx is required"),
+        ({"camera": {"width": -3}}, r"\[camera\] width = -3 is out of range"),
+        ({"camera": {"width": 640.5}}, r"\[camera\] width must be a positive integer"),
+        ({"camera": {"source": "file"}}, r"\[camera\] path must be given"),
         ({"camera": {"exposre": 3}}, r"\[camera\]: unknown key 'exposre'"),
         (
             {
@@ -64,7 +107,11 @@ def test_degrees_and_nested_tables() -> None:
             },
             r"must be \"equirectangular\"",
         ),
-        ({"daemon": {"attitude_timeout_us": 0}}, r"\[daemon\]: attitude_timeout_us must be > 0"),
+        ({"daemon": {"attitude_timeout_us": 0}}, r"\[daemon\] attitude_timeout_us = 0 is out"),
+        (
+            {"daemon": {"attitude_lead_max_us": 50_000}},
+            r"\[daemon\]: attitude_wait_max_us must be >= attitude_lead_max_us",
+        ),
         ({"sim": {"scenario": "T100"}}, r"\[sim\]: scenario must be one of"),
         ({"detection": {"seed_hue_deg": [1.0]}}, r"seed_hue_deg must have 2 items"),
     ],

@@ -196,8 +196,7 @@ def test_autopilot_link_lost_and_back(tmp_path: Path) -> None:
     # is judged once it has been back a whole window, not over the time it was out).
     assert "attitude slow" not in s.faults, s.faults
     # Frames the attitude never covered are dropped (never decided blind): ~2 s of them.
-    # (The old "objects unknown" here came from the spurious "slow" after the link was back.)
-    assert s.dropped >= 1.5 * FPS and s.stats.objects_unknown_by_input == 0, s
+    assert s.dropped >= 1.5 * FPS, s
     assert s.endpoint_stats.get("statustext suppressed", 0) >= 0
     # After the link is back, statuses flow and are decided again.
     assert report.score.decided > 10 and report.ok, report.lines()

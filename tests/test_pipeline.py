@@ -78,11 +78,21 @@ def test_nan_attitude_is_refused_and_counted(pinhole) -> None:  # type: ignore[n
 
 
 def test_no_telemetry_gives_no_bearings_but_no_crash(pinhole) -> None:  # type: ignore[no-untyped-def]
+    """Without attitude the objects are still reported (issue 13: rows, not silence):
+    tracked in the camera frame, unknown with the reason, no local-level bearing and no
+    time to contact."""
     s, frames, _ = pinhole
     pipe = Pipeline(s.camera)
     results = feed(pipe, frames[:5], [])
-    assert all(not r.attitude_ok and r.objects == () for r in results)
+    assert all(not r.attitude_ok for r in results)
     assert pipe.health.frames_without_attitude == 5
+    objs = [o for r in results for o in r.objects]
+    assert objs and {o.track_id for o in objs} == {objs[0].track_id}  # one track throughout
+    for o in objs:
+        assert (o.state, o.reason) == ("unknown", "no attitude")
+        assert np.all(np.isnan(o.bearing_ned)) and math.isnan(o.azimuth_ned_rad)
+        assert np.all(np.isfinite(o.bearing_body)) and o.angular_radius_rad > 0
+        assert not o.ttc_s == o.ttc_s  # NaN: no time to contact without attitude
 
 
 def test_time_going_backwards_resets_history(pinhole) -> None:  # type: ignore[no-untyped-def]

@@ -128,14 +128,26 @@ class Equirectangular(CameraModel):
     model_name: str = field(init=False, default="equirectangular")
 
     def __post_init__(self) -> None:
+        # Each message names one key ("camera." is replaced by the caller's location).
         if not self.azimuth_max_deg > self.azimuth_min_deg:
-            raise CameraModelError("camera.azimuth_max_deg must exceed camera.azimuth_min_deg")
+            raise CameraModelError(
+                f"camera.azimuth_max_deg = {self.azimuth_max_deg:g} must exceed "
+                f"azimuth_min_deg = {self.azimuth_min_deg:g}"
+            )
         if self.azimuth_max_deg - self.azimuth_min_deg > 360.0 + 1e-9:
-            raise CameraModelError("camera.azimuth_max_deg - azimuth_min_deg exceeds 360")
+            raise CameraModelError(
+                f"camera.azimuth_max_deg = {self.azimuth_max_deg:g} must be at most 360 "
+                f"above azimuth_min_deg = {self.azimuth_min_deg:g}"
+            )
+        for name in ("elevation_max_deg", "elevation_min_deg"):
+            value = getattr(self, name)
+            if not -90.0 <= value <= 90.0:
+                raise CameraModelError(f"camera.{name} must lie within [-90, 90], got {value:g}")
         if not self.elevation_max_deg > self.elevation_min_deg:
-            raise CameraModelError("camera.elevation_max_deg must exceed camera.elevation_min_deg")
-        if self.elevation_max_deg > 90.0 or self.elevation_min_deg < -90.0:
-            raise CameraModelError("camera.elevation_*_deg must lie within [-90, 90]")
+            raise CameraModelError(
+                f"camera.elevation_max_deg = {self.elevation_max_deg:g} must exceed "
+                f"elevation_min_deg = {self.elevation_min_deg:g}"
+            )
 
     @property
     def _az_span_rad(self) -> float:
@@ -199,8 +211,10 @@ class _Intrinsic(CameraModel):
     dist: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
-        if not (self.fx > 0 and self.fy > 0):
-            raise CameraModelError("camera.fx and camera.fy must be positive")
+        for name in ("fx", "fy"):
+            value = getattr(self, name)
+            if not value > 0:
+                raise CameraModelError(f"camera.{name} must be positive, got {value!r}")
 
     def cv_camera_matrix(self) -> FloatArray:
         """OpenCV ``K`` (pixel centre at integer coordinates, so c - 0.5)."""

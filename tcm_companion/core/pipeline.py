@@ -4,9 +4,13 @@
 telemetry reaches it one way only: the :class:`TelemetryBuffer` given to the constructor,
 which the caller feeds and may share between cameras):
 attitude at the frame time (slerp on the autopilot clock mapped to the companion clock)
-→ detection → tracking by bearing → optic flow → translation between the frame and the
-one captured ``interval_s`` earlier (vision, autopilot or fused) → TCM/ECM (and BSM when
-enabled) per track → time to contact. It keeps the short history the method needs and
+→ detection (the ``[detection] backend``: colour, boxes or onnx) → tracking by bearing →
+optic flow → translation between the frame and the one captured ``interval_s`` earlier
+(vision, autopilot or fused) → TCM/ECM (and BSM when enabled) per track → time to contact.
+
+A frame without attitude still reports the objects it sees: tracked in the camera frame,
+``unknown`` with reason "no attitude", their local-level bearing NaN and no time to
+contact (``ObjectResult``); the body-frame bearing, angular radius and label are known. It keeps the short history the method needs and
 nothing else; it never reads a clock, a file or a device (stage timings use an injected
 timer and do not affect results). Flight, SITL and replay all call this same object.
 
@@ -43,7 +47,7 @@ from .classify import (
     hold,
     unknown,
 )
-from .detection import Detection, DetectionConfig, Detector
+from .detection import Detection, DetectionConfig, DetectorBackend, make_detector
 from .egomotion import (
     EgomotionConfig,
     TranslationEstimate,
@@ -66,6 +70,10 @@ MIN_FRAME_RECORDS = 48
 PERIOD_FRAMES = 16
 
 EgomotionSource = Literal["vision", "autopilot", "fused"]
+
+#: The local-level bearing of an object seen in a frame without attitude.
+_NO_BEARING: FloatArray = np.full(3, np.nan)
+_NO_BEARING.setflags(write=False)
 
 
 @dataclass(frozen=True)
@@ -95,9 +103,9 @@ class ObjectResult:
     reason: str  # why the state is unknown ("" otherwise)
     bearing_cam: FloatArray  # (3,) unit, camera FRD
     bearing_body: FloatArray  # (3,) unit, body FRD
-    bearing_ned: FloatArray  # (3,) unit, local level NED
-    azimuth_ned_rad: float  # clockwise from north
-    elevation_ned_rad: float  # positive up
+    bearing_ned: FloatArray  # (3,) unit, local level NED; NaN in a frame without attitude
+    azimuth_ned_rad: float  # clockwise from north (NaN without attitude)
+    elevation_ned_rad: float  # positive up (NaN without attitude)
     angular_radius_rad: float
     centroid_px: tuple[float, float]
     classification: Classification
@@ -107,6 +115,8 @@ class ObjectResult:
     # Confidence in ttc_s and collision_course (0..1), from the looming fit alone: a
     # head-on object has no TCM state but may have a confident time to contact.
     ttc_confidence: float = 0.0
+    # What the detector calls it: the track's most frequent recent label ("" if none).
+    label: str = ""
 
     @property
     def disparity(self) -> float:
@@ -168,7 +178,7 @@ class Pipeline:
         flow_cfg = config.flow
         if flow_cfg.max_history < depth:
             flow_cfg = replace(flow_cfg, max_history=depth)
-        self.detector = Detector(camera, config.detection)
+        self.detector: DetectorBackend = make_detector(camera, config.detection)
         self.tracker = Tracker(tracking)
         self.flow = FlowTracker(camera, flow_cfg)
         self._frames: deque[_FrameRecord] = deque(maxlen=depth)
@@ -225,7 +235,7 @@ class Pipeline:
         t0 = clock()
         timings["telemetry"] = (t0 - t_start) * 1e3
 
-        detections = self.detector.detect(frame)
+        detections = self.detector.detect(frame, frame_time_us)
         t1 = clock()
         timings["detect"] = (t1 - t0) * 1e3
 
@@ -247,11 +257,10 @@ class Pipeline:
         self._slack_s = jitter_slack_s(
             median_period_s(r.t_us for r in itertools.islice(reversed(self._frames), PERIOD_FRAMES))
         )
-        if R_ned_from_cam is None:
-            tracks = self.tracker.coast_all()
-        else:
-            obs = [self._observation(d, index, frame_time_us, R_ned_from_cam) for d in detections]
-            tracks = self.tracker.update(obs, frame_time_us)
+        # Without attitude the objects are still tracked, in the camera frame (their
+        # local-level bearings are NaN), and reported as unknown ("no attitude").
+        obs = [self._observation(d, index, frame_time_us, R_ned_from_cam) for d in detections]
+        tracks = self.tracker.update(obs, frame_time_us)
         t3 = clock()
         timings["track"] = (t3 - t2) * 1e3
 
@@ -302,6 +311,8 @@ class Pipeline:
                 ref = track.at_frame(index - k)
                 if track.coasting or ref is None or cur.frame_index != index:
                     continue
+                if not (ref.has_attitude and cur.has_attitude):
+                    continue
                 if est is None:
                     est = self._translation(index - k, index)
                 if not est.valid:
@@ -325,18 +336,21 @@ class Pipeline:
         self.flow.reset()
 
     def _observation(
-        self, det: Detection, index: int, t_us: int, R_ned_from_cam: FloatArray
+        self, det: Detection, index: int, t_us: int, R_ned_from_cam: FloatArray | None
     ) -> Observation:
         b_body = self.camera.R_body_from_cam @ det.bearing_cam
         return Observation(
             frame_index=index,
             t_us=t_us,
-            bearing_ned=R_ned_from_cam @ det.bearing_cam,
+            bearing_ned=(
+                R_ned_from_cam @ det.bearing_cam if R_ned_from_cam is not None else _NO_BEARING
+            ),
             bearing_body=b_body,
             bearing_cam=det.bearing_cam,
             angular_radius_rad=det.angular_radius_rad,
             centroid_px=det.centroid_px,
             touches_border=det.touches_border,
+            label=det.label,
         )
 
     def _record(self, index: int) -> _FrameRecord | None:
@@ -397,6 +411,8 @@ class Pipeline:
         cur = track.last
         if track.coasting:
             return unknown("lost track")
+        if not cur.has_attitude:
+            return unknown("no attitude")
         slack_us = round(self._slack_s * 1e6)
         tol_us = round(cls.interval_tolerance_s * 1e6)
         interval_us = round(cls.interval_s * 1e6)
@@ -444,6 +460,8 @@ class Pipeline:
         cls = self.config.classifier
         interval = cur.frame_index - ref.frame_index
         interval_s = (cur.t_us - ref.t_us) * 1e-6
+        if not ref.has_attitude:  # the reference frame had no attitude
+            return unknown("no attitude", interval, interval_s)
         if ref.frame_index not in cache:
             cache[ref.frame_index] = self._translation(ref.frame_index, cur.frame_index)
         est = cache[ref.frame_index]
@@ -541,6 +559,10 @@ class Pipeline:
             itertools.takewhile(lambda o: t_us - o.t_us < window_us, reversed(track.history))
         )
         hist.reverse()
+        if not obs.has_attitude:
+            hist = []  # no time to contact from a frame without attitude
+        elif not all(o.has_attitude for o in hist):
+            hist = [o for o in hist if o.has_attitude]
         ttc = estimate_ttc(
             np.array([o.t_us * 1e-6 for o in hist]),
             np.array([o.angular_radius_rad for o in hist]),
@@ -565,4 +587,5 @@ class Pipeline:
             collision_course=ttc.collision_course,
             miss_radii=ttc.miss_radii,
             ttc_confidence=ttc.confidence,
+            label=track.label,
         )

@@ -8,6 +8,13 @@ plausible size change. The assignment is optimal over all pairs (Hungarian). Tra
 the observation history the classifier needs, by capture time (``history_s``, at least its
 longest interval), and answer "the observation captured nearest time t".
 
+A frame without attitude has no local-level bearings (NaN): its observations are
+associated in the camera frame instead (each track's camera bearing, extrapolated the same
+way), so objects stay tracked in the image through a gap in the telemetry; so are pairs
+whose track was last seen without attitude. A track's label is the most frequent non-empty
+label among the observations it keeps (the most recent of equally frequent ones), so a
+detector's occasional wrong class does not flicker through.
+
 Association is between consecutive frames, so ``max_misses`` and the gate's growth while
 a track coasts count frames: at a lower rate each miss is a longer coast, but also the
 only evidence there is.
@@ -59,6 +66,12 @@ class Observation:
     angular_radius_rad: float
     centroid_px: tuple[float, float]
     touches_border: bool = False
+    label: str = ""  # what the detector called it ("" when it does not say)
+
+    @property
+    def has_attitude(self) -> bool:
+        """Whether the local-level bearing is known (the frame had an attitude)."""
+        return bool(np.all(np.isfinite(self.bearing_ned)))
 
 
 @dataclass
@@ -99,6 +112,20 @@ class Track:
             old = self.history.popleft()
             self._by_frame.pop(old.frame_index, None)
 
+    @property
+    def label(self) -> str:
+        """The most frequent non-empty label of the kept observations ("" if none); of
+        equally frequent ones, the most recent."""
+        counts: dict[str, int] = {}
+        last: dict[str, int] = {}
+        for i, obs in enumerate(self.history):
+            if obs.label:
+                counts[obs.label] = counts.get(obs.label, 0) + 1
+                last[obs.label] = i
+        if not counts:
+            return ""
+        return max(counts, key=lambda k: (counts[k], last[k]))
+
     def at_frame(self, frame_index: int) -> Observation | None:
         return self._by_frame.get(frame_index)
 
@@ -133,10 +160,23 @@ class Track:
             return b1
         prev = self.history[-2]
         dt_prev = self.last.t_us - prev.t_us
-        if dt_prev <= 0:
+        if dt_prev <= 0 or not prev.has_attitude:
             return b1
         s = (t_us - self.last.t_us) / dt_prev
         return np.asarray(normalize(b1 + s * (b1 - prev.bearing_ned)), dtype=np.float64)
+
+    def predict_bearing_cam(self, t_us: int) -> FloatArray:
+        """Constant-angular-rate extrapolation in the camera frame (frames without
+        attitude: the vehicle's rotation is not undone)."""
+        b1 = self.last.bearing_cam
+        if len(self.history) < 2:
+            return b1
+        prev = self.history[-2]
+        dt_prev = self.last.t_us - prev.t_us
+        if dt_prev <= 0:
+            return b1
+        s = (t_us - self.last.t_us) / dt_prev
+        return np.asarray(normalize(b1 + s * (b1 - prev.bearing_cam)), dtype=np.float64)
 
 
 class Tracker:
@@ -159,6 +199,13 @@ class Tracker:
             pred = np.stack([tr.predict_bearing_ned(t_us) for tr in self.tracks])
             obs_b = np.stack([o.bearing_ned for o in observations])
             ang = angle_between(pred[:, None, :], obs_b[None, :, :])
+            if not np.all(np.isfinite(ang)):
+                # No local-level bearing on one side (a frame without attitude): compare
+                # camera-frame bearings for those pairs.
+                pred_c = np.stack([tr.predict_bearing_cam(t_us) for tr in self.tracks])
+                obs_c = np.stack([o.bearing_cam for o in observations])
+                ang_c = angle_between(pred_c[:, None, :], obs_c[None, :, :])
+                ang = np.where(np.isfinite(ang), ang, ang_c)
             alpha_t = np.array([tr.last.angular_radius_rad for tr in self.tracks])
             alpha_o = np.array([o.angular_radius_rad for o in observations])
             gate = cfg.gate_rad + cfg.gate_radius_factor * np.maximum(

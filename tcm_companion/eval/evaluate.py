@@ -9,6 +9,12 @@ captured at least the classifier's ``interval_s`` after the scenario's first fra
 
 All methods are scored on the same object-frames: those where TCM reached a decision
 (so a method is never credited for frames TCM declined as degenerate).
+
+Any detection backend can be scored. With ``[detection] backend = "boxes"`` the boxes are
+the scenario's ``detections.csv``; a simulated scenario, which has none, gets the
+simulator's detector (:func:`scenario_detections`). Truth for a shape other than a sphere
+gives the bounding sphere's radius, so ``radius err`` compares the measured angular radius
+with the bounding sphere's (for a box estimator it is a bias, not an error of the method).
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -26,7 +33,7 @@ from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
 from ..io.scenario import Truth
-from ..replay.scenario import ScenarioLike, run_replay, with_method
+from ..replay.scenario import DetectionRow, ScenarioLike, run_replay, with_method
 from .metrics import confusion, roc
 
 MATCH_GATE_RAD = math.radians(5.0)
@@ -59,6 +66,7 @@ class ObjectFrame:
     interval_frames: int = 0
     interval_s: float = math.nan  # capture time between the pair's observations
     time_s: float = math.nan  # capture time since the scenario's first frame
+    label: str = ""  # the matched track's label
 
     def score(self, method: Method, cls: ClassifierConfig) -> float:
         if method == "tcm":
@@ -179,14 +187,27 @@ def match_frame(
                 collision_course=o.collision_course,
                 interval_frames=c.interval_frames,
                 interval_s=c.interval_s,
+                label=o.label,
                 **base,  # type: ignore[arg-type]
             )
         )
     return out, len(objs) - len(used)
 
 
+@dataclass(frozen=True)
+class _ScaledRow:
+    frame: int
+    x_min: float
+    y_min: float
+    x_max: float
+    y_max: float
+    score: float
+    label: str
+
+
 class ResizedScenario:
-    """A scenario seen through the same lens at another resolution (frames resized)."""
+    """A scenario seen through the same lens at another resolution (frames resized, and
+    the boxes of its ``detections.csv`` scaled with them)."""
 
     def __init__(self, inner: ScenarioLike, width: int, height: int) -> None:
         self.inner = inner
@@ -195,6 +216,22 @@ class ResizedScenario:
         self.frame_times_us = inner.frame_times_us
         self.telemetry = inner.telemetry
         self.truth = getattr(inner, "truth", None)
+        rows = getattr(inner, "detections", None)
+        self.detections: list[_ScaledRow] | None = None
+        if rows is not None:
+            sx, sy = width / inner.camera.width, height / inner.camera.height
+            self.detections = [
+                _ScaledRow(
+                    r.frame,
+                    r.x_min * sx,
+                    r.y_min * sy,
+                    r.x_max * sx,
+                    r.y_max * sy,
+                    r.score,
+                    r.label,
+                )
+                for r in rows
+            ]
 
     @property
     def n_frames(self) -> int:
@@ -219,6 +256,20 @@ def at_resolution(scenario: ScenarioLike, width: int, height: int) -> ScenarioLi
     return ResizedScenario(scenario, width, height)
 
 
+def scenario_detections(scenario: ScenarioLike) -> list[Any] | None:
+    """The external detector's boxes of a scenario: its ``detections.csv`` (``detections``),
+    else, for a simulated scenario, the simulator's detector with its default noise
+    (``sim/scene/detector_sim.py``); None when there are none."""
+    rows = getattr(scenario, "detections", None)
+    if rows is not None:
+        return list(rows)
+    if getattr(scenario, "plan", None) is not None and hasattr(scenario, "renderer"):
+        from ..sim.scene.detector_sim import simulate_detections
+
+        return list(simulate_detections(scenario))  # type: ignore[arg-type]
+    return None
+
+
 def evaluate_scenario(
     scenario: ScenarioLike,
     config: AppConfig,
@@ -236,6 +287,14 @@ def evaluate_scenario(
         raise ValueError(f"{scenario.name}: no truth.csv, cannot evaluate")
     cfg = with_method(config, "tcm", bsm=with_bsm)
     pipe = Pipeline(scenario.camera, cfg.pipeline)
+    detections: list[DetectionRow] | None = None
+    if cfg.pipeline.detection.backend == "boxes":
+        detections = scenario_detections(scenario)
+        if detections is None:
+            raise ValueError(
+                f'{scenario.name}: [detection] backend "boxes" needs the scenario\'s '
+                "detections.csv (sim export NAME DIR --detections writes one)"
+            )
     true_ttc = truth_ttc_s(truth, scenario.frame_times_us)
     ttc_cfg = cfg.pipeline.ttc
     true_coll = truth_collision_course(
@@ -243,7 +302,7 @@ def evaluate_scenario(
     )
     ev = ScenarioEval(scenario.name, (scenario.camera.width, scenario.camera.height))
     t0_us = int(scenario.frame_times_us[0]) if len(scenario.frame_times_us) else None
-    for result in run_replay(scenario, cfg, pipe):
+    for result in run_replay(scenario, cfg, pipe, detections):
         recs, false = match_frame(
             result, truth, result.frame_index, true_ttc, true_coll, t0_us=t0_us
         )

@@ -36,8 +36,9 @@ def object_doc(o: ObjectResult, object_radius_m: float) -> dict[str, Any]:
         "miss_radii": _num(o.miss_radii),
         "azimuth_body_deg": math.degrees(az_b),
         "elevation_body_deg": math.degrees(el_b),
-        "azimuth_ned_deg": math.degrees(o.azimuth_ned_rad),
-        "elevation_ned_deg": math.degrees(o.elevation_ned_rad),
+        # NaN (null) in a frame without attitude
+        "azimuth_ned_deg": _num(math.degrees(o.azimuth_ned_rad)),
+        "elevation_ned_deg": _num(math.degrees(o.elevation_ned_rad)),
         "angular_radius_deg": math.degrees(o.angular_radius_rad),
         "range_m": _num(object_range_m(o, object_radius_m)),
         "centroid_px": [float(o.centroid_px[0]), float(o.centroid_px[1])],

@@ -1,6 +1,7 @@
 """Pipeline results → MAVLink messages (pure functions; the endpoint sends them).
 
-- ``TCM_OBJECT_STATUS`` (our dialect): every tracked object of every frame.
+- ``TCM_OBJECT_STATUS`` (our dialect): every tracked object of every frame, with its label
+  mapped onto TCM_OBJECT_LABEL (:func:`label_id`).
 - ``OBSTACLE_DISTANCE`` (common): 72 sectors of 5° around the body, BODY_FRD; what PX4's
   collision prevention and ArduPilot's MAVLink proximity backend consume. A sector holds
   the nearest object of known range that covers it; every other sector says "no
@@ -38,6 +39,55 @@ STATES: dict[str, int] = {
     "stationary": d.TCM_OBJECT_STATE_STATIONARY,
     "moving": d.TCM_OBJECT_STATE_MOVING,
 }
+#: Detector labels → TCM_OBJECT_LABEL, by lower-case name (COCO's classes among them);
+#: "" is NONE, any other label OTHER (:func:`label_id`).
+LABELS: dict[str, int] = {
+    **dict.fromkeys(
+        ("person", "pedestrian", "people", "human", "man", "woman", "child"),
+        d.TCM_OBJECT_LABEL_PERSON,
+    ),
+    **dict.fromkeys(("car", "automobile"), d.TCM_OBJECT_LABEL_CAR),
+    **dict.fromkeys(("truck", "van", "lorry", "pickup"), d.TCM_OBJECT_LABEL_TRUCK),
+    "bus": d.TCM_OBJECT_LABEL_BUS,
+    **dict.fromkeys(("motorcycle", "motorbike"), d.TCM_OBJECT_LABEL_MOTORCYCLE),
+    **dict.fromkeys(("bicycle", "bike"), d.TCM_OBJECT_LABEL_BICYCLE),
+    **dict.fromkeys(("train", "tram"), d.TCM_OBJECT_LABEL_TRAIN),
+    **dict.fromkeys(("boat", "ship"), d.TCM_OBJECT_LABEL_BOAT),
+    **dict.fromkeys(
+        ("airplane", "aeroplane", "aircraft", "plane", "helicopter", "glider"),
+        d.TCM_OBJECT_LABEL_AIRCRAFT,
+    ),
+    **dict.fromkeys(("drone", "uav", "uas", "multicopter", "quadcopter"), d.TCM_OBJECT_LABEL_DRONE),
+    "bird": d.TCM_OBJECT_LABEL_BIRD,
+    **dict.fromkeys(
+        (
+            "animal",
+            "cat",
+            "dog",
+            "horse",
+            "sheep",
+            "cow",
+            "elephant",
+            "bear",
+            "zebra",
+            "giraffe",
+            "deer",
+        ),
+        d.TCM_OBJECT_LABEL_ANIMAL,
+    ),
+    **dict.fromkeys(("ball", "sports ball"), d.TCM_OBJECT_LABEL_BALL),
+    **dict.fromkeys(("kite", "balloon"), d.TCM_OBJECT_LABEL_KITE),
+}
+
+
+def label_id(label: str) -> int:
+    """TCM_OBJECT_LABEL of a detector's label (case and surrounding spaces ignored)."""
+    key = label.strip().lower()
+    if not key:
+        return int(d.TCM_OBJECT_LABEL_NONE)
+    return LABELS.get(key, int(d.TCM_OBJECT_LABEL_OTHER))
+
+
 SECTORS = 72
 SECTOR_DEG = 5
 NO_RANGE = math.nan
@@ -111,6 +161,7 @@ def object_status(
         range=object_range_m(obj, object_radius_m),
         confidence=confidence_pct(obj, threshold),
         ttc_confidence=ttc_confidence_pct(obj),
+        label=label_id(obj.label),
     )
 
 

@@ -436,6 +436,44 @@ enums["TCM_LOG_STATE"][2] = EnumEntry("TCM_LOG_STATE_FAULT", """Enabled but fail
 TCM_LOG_STATE_ENUM_END = 3
 enums["TCM_LOG_STATE"][3] = EnumEntry("TCM_LOG_STATE_ENUM_END", """""")
 
+# TCM_OBJECT_LABEL
+enums["TCM_OBJECT_LABEL"] = Enum()
+enums["TCM_OBJECT_LABEL"].bitmask = False
+TCM_OBJECT_LABEL_NONE = 0
+enums["TCM_OBJECT_LABEL"][0] = EnumEntry("TCM_OBJECT_LABEL_NONE", """The detection backend gives no label (e.g. colour detection without a configured label).""")
+TCM_OBJECT_LABEL_OTHER = 1
+enums["TCM_OBJECT_LABEL"][1] = EnumEntry("TCM_OBJECT_LABEL_OTHER", """A label not in this list.""")
+TCM_OBJECT_LABEL_PERSON = 2
+enums["TCM_OBJECT_LABEL"][2] = EnumEntry("TCM_OBJECT_LABEL_PERSON", """A person.""")
+TCM_OBJECT_LABEL_CAR = 3
+enums["TCM_OBJECT_LABEL"][3] = EnumEntry("TCM_OBJECT_LABEL_CAR", """A car.""")
+TCM_OBJECT_LABEL_TRUCK = 4
+enums["TCM_OBJECT_LABEL"][4] = EnumEntry("TCM_OBJECT_LABEL_TRUCK", """A truck or van.""")
+TCM_OBJECT_LABEL_BUS = 5
+enums["TCM_OBJECT_LABEL"][5] = EnumEntry("TCM_OBJECT_LABEL_BUS", """A bus.""")
+TCM_OBJECT_LABEL_MOTORCYCLE = 6
+enums["TCM_OBJECT_LABEL"][6] = EnumEntry("TCM_OBJECT_LABEL_MOTORCYCLE", """A motorcycle.""")
+TCM_OBJECT_LABEL_BICYCLE = 7
+enums["TCM_OBJECT_LABEL"][7] = EnumEntry("TCM_OBJECT_LABEL_BICYCLE", """A bicycle.""")
+TCM_OBJECT_LABEL_TRAIN = 8
+enums["TCM_OBJECT_LABEL"][8] = EnumEntry("TCM_OBJECT_LABEL_TRAIN", """A train or tram.""")
+TCM_OBJECT_LABEL_BOAT = 9
+enums["TCM_OBJECT_LABEL"][9] = EnumEntry("TCM_OBJECT_LABEL_BOAT", """A boat or ship.""")
+TCM_OBJECT_LABEL_AIRCRAFT = 10
+enums["TCM_OBJECT_LABEL"][10] = EnumEntry("TCM_OBJECT_LABEL_AIRCRAFT", """A crewed aircraft: aeroplane, helicopter, glider.""")
+TCM_OBJECT_LABEL_DRONE = 11
+enums["TCM_OBJECT_LABEL"][11] = EnumEntry("TCM_OBJECT_LABEL_DRONE", """An uncrewed aircraft: drone, multicopter.""")
+TCM_OBJECT_LABEL_BIRD = 12
+enums["TCM_OBJECT_LABEL"][12] = EnumEntry("TCM_OBJECT_LABEL_BIRD", """A bird.""")
+TCM_OBJECT_LABEL_ANIMAL = 13
+enums["TCM_OBJECT_LABEL"][13] = EnumEntry("TCM_OBJECT_LABEL_ANIMAL", """Another animal (dog, horse, cow, ...).""")
+TCM_OBJECT_LABEL_BALL = 14
+enums["TCM_OBJECT_LABEL"][14] = EnumEntry("TCM_OBJECT_LABEL_BALL", """A ball.""")
+TCM_OBJECT_LABEL_KITE = 15
+enums["TCM_OBJECT_LABEL"][15] = EnumEntry("TCM_OBJECT_LABEL_KITE", """A kite or balloon.""")
+TCM_OBJECT_LABEL_ENUM_END = 16
+enums["TCM_OBJECT_LABEL"][16] = EnumEntry("TCM_OBJECT_LABEL_ENUM_END", """""")
+
 # HL_FAILURE_FLAG
 enums["HL_FAILURE_FLAG"] = Enum()
 enums["HL_FAILURE_FLAG"].bitmask = True
@@ -8279,22 +8317,22 @@ class MAVLink_tcm_object_status_message(MAVLink_message):
 
     id = MAVLINK_MSG_ID_TCM_OBJECT_STATUS
     msgname = "TCM_OBJECT_STATUS"
-    fieldnames = ["time_boot_ms", "track_id", "camera_id", "state", "reason", "disparity", "threshold", "ttc", "collision_course", "azimuth", "elevation", "angular_radius", "range", "confidence", "ttc_confidence"]
-    ordered_fieldnames = ["time_boot_ms", "disparity", "threshold", "ttc", "azimuth", "elevation", "angular_radius", "range", "track_id", "camera_id", "state", "reason", "collision_course", "confidence", "ttc_confidence"]
-    fieldtypes = ["uint32_t", "uint16_t", "uint8_t", "uint8_t", "uint8_t", "float", "float", "float", "uint8_t", "float", "float", "float", "float", "uint8_t", "uint8_t"]
+    fieldnames = ["time_boot_ms", "track_id", "camera_id", "state", "reason", "disparity", "threshold", "ttc", "collision_course", "azimuth", "elevation", "angular_radius", "range", "confidence", "ttc_confidence", "label"]
+    ordered_fieldnames = ["time_boot_ms", "disparity", "threshold", "ttc", "azimuth", "elevation", "angular_radius", "range", "track_id", "camera_id", "state", "reason", "collision_course", "confidence", "ttc_confidence", "label"]
+    fieldtypes = ["uint32_t", "uint16_t", "uint8_t", "uint8_t", "uint8_t", "float", "float", "float", "uint8_t", "float", "float", "float", "float", "uint8_t", "uint8_t", "uint8_t"]
     fielddisplays_by_name: Dict[str, str] = {}
-    fieldenums_by_name: Dict[str, str] = {"state": "TCM_OBJECT_STATE", "reason": "TCM_UNKNOWN_REASON"}
+    fieldenums_by_name: Dict[str, str] = {"state": "TCM_OBJECT_STATE", "reason": "TCM_UNKNOWN_REASON", "label": "TCM_OBJECT_LABEL"}
     fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "ttc": "s", "azimuth": "rad", "elevation": "rad", "angular_radius": "rad", "range": "m", "confidence": "%", "ttc_confidence": "%"}
-    native_format = bytearray(b"<IfffffffHBBBBBB")
-    orders = [0, 8, 9, 10, 11, 1, 2, 3, 12, 4, 5, 6, 7, 13, 14]
-    lengths = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]
-    array_lengths = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
+    native_format = bytearray(b"<IfffffffHBBBBBBB")
+    orders = [0, 8, 9, 10, 11, 1, 2, 3, 12, 4, 5, 6, 7, 13, 14, 15]
+    lengths = [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]
+    array_lengths = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]
     crc_extra = 111
-    unpacker = struct.Struct("<IfffffffHBBBBBB")
+    unpacker = struct.Struct("<IfffffffHBBBBBBB")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0):
+    def __init__(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0, label: int = 0):
         MAVLink_message.__init__(self, MAVLink_tcm_object_status_message.id, MAVLink_tcm_object_status_message.msgname)
         self._fieldnames = MAVLink_tcm_object_status_message.fieldnames
         self._instance_field = MAVLink_tcm_object_status_message.instance_field
@@ -8314,9 +8352,10 @@ class MAVLink_tcm_object_status_message(MAVLink_message):
         self.range = range
         self.confidence = confidence
         self.ttc_confidence = ttc_confidence
+        self.label = label
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.disparity, self.threshold, self.ttc, self.azimuth, self.elevation, self.angular_radius, self.range, self.track_id, self.camera_id, self.state, self.reason, self.collision_course, self.confidence, self.ttc_confidence), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.disparity, self.threshold, self.ttc, self.azimuth, self.elevation, self.angular_radius, self.range, self.track_id, self.camera_id, self.state, self.reason, self.collision_course, self.confidence, self.ttc_confidence, self.label), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -23116,7 +23155,7 @@ class MAVLink(object):
         m._header = MAVLink_header(msgId, incompat_flags, compat_flags, mlen, seq, srcSystem, srcComponent)
         return m
 
-    def tcm_object_status_encode(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0) -> MAVLink_tcm_object_status_message:
+    def tcm_object_status_encode(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0, label: int = 0) -> MAVLink_tcm_object_status_message:
         """
         One tracked object in one camera frame: moving or stationary (Triangle
         Closure Method) and time to contact. Sent for every tracked
@@ -23137,11 +23176,12 @@ class MAVLink(object):
         range                     : Range to the object's centre when known (stationary object and metric translation from the autopilot), else NaN. [m] (type:float)
         confidence                : Confidence of the motion state (state) only, 0-100: how far the TCM disparity lies from the threshold, relative to it. 0 when the state is unknown. It says nothing about ttc or collision_course: see ttc_confidence. [%] (type:uint8_t)
         ttc_confidence            : Confidence of ttc and collision_course, 0-100: 100 x (1 - relative standard error of the looming rate that gives ttc). 0 when ttc is NaN. Independent of state: a head-on object (state unknown, reason HEAD_ON) has a valid ttc and collision_course. Since protocol 2; 0 from older companions. [%] (type:uint8_t)
+        label                     : What the object is: the track's most frequent recent label, mapped onto TCM_OBJECT_LABEL by name (TCM_OBJECT_LABEL_NONE when the detection backend gives none). NONE is a trailing zero that MAVLink 2 trims, so without labels the payload keeps its protocol-2 length; a decoder that checks the length must accept one byte more. 0 from older companions. (type:uint8_t, values:TCM_OBJECT_LABEL)
 
         """
-        return MAVLink_tcm_object_status_message(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence, ttc_confidence)
+        return MAVLink_tcm_object_status_message(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence, ttc_confidence, label)
 
-    def tcm_object_status_send(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0, force_mavlink1: bool = False) -> None:
+    def tcm_object_status_send(self, time_boot_ms: int, track_id: int, camera_id: int, state: int, reason: int, disparity: float, threshold: float, ttc: float, collision_course: int, azimuth: float, elevation: float, angular_radius: float, range: float, confidence: int, ttc_confidence: int = 0, label: int = 0, force_mavlink1: bool = False) -> None:
         """
         One tracked object in one camera frame: moving or stationary (Triangle
         Closure Method) and time to contact. Sent for every tracked
@@ -23162,9 +23202,10 @@ class MAVLink(object):
         range                     : Range to the object's centre when known (stationary object and metric translation from the autopilot), else NaN. [m] (type:float)
         confidence                : Confidence of the motion state (state) only, 0-100: how far the TCM disparity lies from the threshold, relative to it. 0 when the state is unknown. It says nothing about ttc or collision_course: see ttc_confidence. [%] (type:uint8_t)
         ttc_confidence            : Confidence of ttc and collision_course, 0-100: 100 x (1 - relative standard error of the looming rate that gives ttc). 0 when ttc is NaN. Independent of state: a head-on object (state unknown, reason HEAD_ON) has a valid ttc and collision_course. Since protocol 2; 0 from older companions. [%] (type:uint8_t)
+        label                     : What the object is: the track's most frequent recent label, mapped onto TCM_OBJECT_LABEL by name (TCM_OBJECT_LABEL_NONE when the detection backend gives none). NONE is a trailing zero that MAVLink 2 trims, so without labels the payload keeps its protocol-2 length; a decoder that checks the length must accept one byte more. 0 from older companions. (type:uint8_t, values:TCM_OBJECT_LABEL)
 
         """
-        self.send(self.tcm_object_status_encode(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence, ttc_confidence), force_mavlink1=force_mavlink1)
+        self.send(self.tcm_object_status_encode(time_boot_ms, track_id, camera_id, state, reason, disparity, threshold, ttc, collision_course, azimuth, elevation, angular_radius, range, confidence, ttc_confidence, label), force_mavlink1=force_mavlink1)
 
     def tcm_pipeline_health_encode(self, time_boot_ms: int, frame_rate: float, latency: float, frames_dropped: int, egomotion_source: int, egomotion_quality: int, health: int, objects: int, log_state: int, timesync_offset_us: int, timesync_rtt_us: int, protocol: int = 0) -> MAVLink_tcm_pipeline_health_message:
         """

@@ -4,18 +4,23 @@ Telemetry is handed to the pipeline in receive order, and a frame sees only what
 arrived by ``capture time + telemetry_wait_us`` — what the daemon would have had when it
 processed that frame live. Anything with the scenario interface works: a directory read
 by :func:`tcm_companion.io.scenario.load_scenario` or a simulated scenario in memory.
+
+With ``[detection] backend = "boxes"`` the scenario's ``detections.csv`` rows (its
+``detections``, or those given) are pushed to the pipeline's boxes backend with each
+frame's capture time just before the frame, as a live feeder would push them.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from typing import Any, Protocol
 
 import numpy as np
 
 from ..config import AppConfig
 from ..core.classify import Method
+from ..core.detection import Box, BoxesDetector
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.telemetry import TelemetrySample
 
@@ -44,18 +49,58 @@ def with_method(config: AppConfig, method: Method | None, bsm: bool = False) -> 
     return dataclasses.replace(config, pipeline=pipe)
 
 
+class DetectionRow(Protocol):
+    """One row of ``detections.csv`` (``io.scenario_extras.Detection`` has these)."""
+
+    frame: int
+    x_min: float
+    y_min: float
+    x_max: float
+    y_max: float
+    score: float
+    label: str
+
+
+def boxes_by_frame(rows: Iterable[DetectionRow]) -> dict[int, list[Box]]:
+    """``detections.csv`` rows as each frame's boxes."""
+    out: dict[int, list[Box]] = {}
+    for r in rows:
+        box = Box(r.x_min, r.y_min, r.x_max, r.y_max, r.score, r.label)
+        out.setdefault(int(r.frame), []).append(box)
+    return out
+
+
 def run_replay(
-    scenario: ScenarioLike, config: AppConfig, pipeline: Pipeline | None = None
+    scenario: ScenarioLike,
+    config: AppConfig,
+    pipeline: Pipeline | None = None,
+    detections: Iterable[DetectionRow] | None = None,
 ) -> Iterator[FrameResult]:
-    """Yield one :class:`FrameResult` per frame of ``scenario``."""
+    """Yield one :class:`FrameResult` per frame of ``scenario``.
+
+    ``detections``: the external detector's boxes for the boxes backend (default: the
+    scenario's ``detections``, i.e. its ``detections.csv``); ignored by other backends.
+    """
     pipe = pipeline or Pipeline(scenario.camera, config.pipeline)
     buffer = pipe.telemetry
     telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
     wait = config.replay.telemetry_wait_us
+    feeder = pipe.detector if isinstance(pipe.detector, BoxesDetector) else None
+    boxes: dict[int, list[Box]] = {}
+    if feeder is not None:
+        rows = detections if detections is not None else getattr(scenario, "detections", None)
+        if rows is None:
+            raise ValueError(
+                f'{scenario.name}: [detection] backend "boxes" replays the boxes of the '
+                "scenario's detections.csv, and it has none"
+            )
+        boxes = boxes_by_frame(rows)
     j = 0
-    for _index, t_us, image in scenario.iter_frames():
+    for index, t_us, image in scenario.iter_frames():
         start = j
         while j < len(telemetry) and telemetry[j].recv_us <= t_us + wait:
             j += 1
         buffer.extend(telemetry[start:j])
+        if feeder is not None:
+            feeder.push(t_us, boxes.get(index, ()))
         yield pipe.step(image, t_us)

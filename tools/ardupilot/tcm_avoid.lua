@@ -44,14 +44,14 @@ local CRC_EXTRA_PIPELINE_HEALTH = 34
 -- as its two halves (low uint32, high int32; _lo and _hi below). A uint32 ("I4")
 -- above 2^31 reads as a negative integer there; time_boot_ms is only ever
 -- subtracted from another millisecond count, which wraps the same way.
--- pymavlink native_format "<IfffffffHBBBBBB"
-local FMT_OBJECT_STATUS = "<I4fffffffI2BBBBBB"
+-- pymavlink native_format "<IfffffffHBBBBBBB"
+local FMT_OBJECT_STATUS = "<I4fffffffI2BBBBBBB"
 local FIELDS_OBJECT_STATUS = {
   "time_boot_ms", "disparity", "threshold", "ttc", "azimuth", "elevation",
   "angular_radius", "range", "track_id", "camera_id", "state", "reason",
-  "collision_course", "confidence", "ttc_confidence",
+  "collision_course", "confidence", "ttc_confidence", "label",
 }
-local LEN_OBJECT_STATUS = 40
+local LEN_OBJECT_STATUS = 41
 -- pymavlink native_format "<qIffIIHBBBBB" (q read as I4 i4)
 local FMT_PIPELINE_HEALTH = "<I4i4I4ffI4I4I2BBBBB"
 local FIELDS_PIPELINE_HEALTH = {

@@ -42,6 +42,7 @@ from tcm_companion.flightlog.reader import (
     read_metadata,
 )
 from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+from tcm_companion.io.aio import monotonic_us
 
 REPO = Path(__file__).resolve().parents[1]
 WALL = 1_790_000_000_000_000_000 - 5_000_000_000  # a fixed wall-minus-monotonic offset (ns)
@@ -637,7 +638,7 @@ def test_rotation_by_time(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
     end = time.monotonic() + 1.3
     i = 0
     while time.monotonic() < end:
-        t = time.monotonic_ns() // 1000
+        t = monotonic_us()
         assert w.log_frame(0, t, sim_frames[i % 5]) and w.log_json("/tcm/health", t, {"i": i})
         ts.append(t)
         i += 1

@@ -1,11 +1,14 @@
 """Autopilot telemetry on the frame clock: samples, clock alignment, interpolation.
 
-The autopilot stamps every sample with its own ``time_boot_ms`` (exact), while the
-companion only knows when a message arrived (late by a jittery link latency). Frames are
-stamped on the companion clock. :class:`ClockSync` maps autopilot boot time to the
-companion clock by a robust lower-envelope fit of ``recv_us - boot_us`` — the same
-quantity TIMESYNC measures live — and :class:`TelemetryBuffer` places samples on that
-clock and interpolates them to frame times (slerp for attitude, linear for position).
+The autopilot stamps every sample with its own ``time_boot_ms`` (exact; its boot clock,
+``_boot_us``), while the companion only knows when a message arrived (late by a jittery
+link latency). Frames are stamped on the companion clock: the clock the caller stamps
+frames and receptions with, in µs — in the daemon its monotonic clock (``_mono_us``); in
+a recorded scenario the ``.tlog``'s reception times (µs since the Unix epoch,
+``_unix_us``). :class:`ClockSync` maps autopilot boot time to the companion clock by a
+robust lower-envelope fit of ``recv_us - boot_us`` — the same quantity TIMESYNC measures
+live — and :class:`TelemetryBuffer` places samples on that clock and interpolates them
+to frame times (slerp for attitude, linear for position).
 
 Nothing here reads a clock: every time is an argument.
 """
@@ -31,7 +34,8 @@ from .frames import (
 class AttitudeSample:
     """Body attitude relative to NED at autopilot time ``time_boot_us``.
 
-    ``recv_us`` is when the companion received it (companion clock, µs since epoch).
+    ``recv_us`` is when the companion received it (companion clock, µs: in the daemon
+    its monotonic clock, ``_mono_us``; see the module docstring).
     ``R_ned_from_body`` is 3×3.
     """
 
@@ -66,7 +70,8 @@ TelemetrySample = AttitudeSample | PositionSample
 
 
 class ClockSync:
-    """Map autopilot boot time (µs) to the companion clock (µs since epoch).
+    """Map autopilot boot time (µs, ``_boot_us``) to the companion clock (µs; the
+    daemon's monotonic clock, ``_mono_us``, or a recording's reception clock).
 
     The offset ``recv_us - boot_us`` of every sample is the true clock offset plus a
     non-negative link latency, so the offset is estimated from the lower envelope: a low

@@ -48,6 +48,7 @@ from ..core.camera import CameraModel
 from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult
 from ..flightlog.handle import FlightLog
+from ..io.aio import monotonic_us
 from ..io.transports import Transport, open_transport
 from ..logsetup import start_flight_log
 from ..service.daemon import Daemon
@@ -458,7 +459,7 @@ async def run_sitl(
     timer = RunTimer()
     mcfg = mock_config or _mock_config(config, time.time_ns() // 1000)
     stop = stop if stop is not None else asyncio.Event()
-    now_us = time.monotonic_ns() // 1000
+    now_us = monotonic_us()
     if mock is None:
         mock = MockAutopilot(mcfg, now_us)
     else:

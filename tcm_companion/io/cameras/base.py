@@ -3,7 +3,7 @@
 A :class:`FrameSource` is opened, read and closed from *one* reader thread
 (:class:`~tcm_companion.io.cameras.reader.CameraReader`); it never touches the event
 loop. ``read()`` blocks until the next image is there and returns it with its capture
-time on the companion's monotonic clock in µs (``time.monotonic_ns() // 1000``), or
+time on the companion's monotonic clock in µs (:func:`~tcm_companion.io.aio.monotonic_us`), or
 ``None`` for the time when the source cannot tell (the reader then stamps the moment
 ``read()`` returned). Failures are exceptions, never silent empty frames:
 
@@ -22,17 +22,14 @@ time on the companion's monotonic clock in µs (``time.monotonic_ns() // 1000``)
 from __future__ import annotations
 
 import threading
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-
-def monotonic_us() -> int:
-    """The companion clock every capture time is on (µs)."""
-    return time.monotonic_ns() // 1000
+# The companion clock every capture time is on (µs), for the sources: io/aio.py has it.
+from ..aio import monotonic_us as monotonic_us
 
 
 class CameraError(RuntimeError):

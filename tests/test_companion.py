@@ -27,6 +27,7 @@ from tcm_companion.service.companion import (
     FrameProcessed,
     HealthChecked,
     ParamsChanged,
+    latency_percentile_ms,
 )
 from tcm_companion.sim.scene.export import SimulatedScenario
 from tcm_companion.sim.scene.scenarios import flight_plan
@@ -167,6 +168,27 @@ def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
     assert "fps" in drv.health_checks()[-1].status_line
     # No frame's output was reported written (frame_sent): no latency yet, and no "nan".
     assert all("latency n/a" in h.status_line for h in drv.health_checks())
+
+
+def test_every_latency_figure_is_one_percentile(flight: Any) -> None:
+    """The status line, TCM_PIPELINE_HEALTH and a run's summary read the latencies the
+    same way (latency_percentile_ms: NumPy's linear interpolation)."""
+    from tcm_companion.service.plumbing import DaemonSummary
+
+    lat = [5.0, 6.0, 7.0, 30.0]
+    assert latency_percentile_ms(lat, 50) == pytest.approx(6.5)
+    assert latency_percentile_ms(lat, 99) == pytest.approx(np.percentile(lat, 99))
+    assert math.isnan(latency_percentile_ms([], 50))
+    drv = Driver(*flight)
+    drv.run(0, 30)
+    comp = drv.companion
+    comp.latencies_ms.clear()
+    comp.latencies_ms.extend(lat)
+    now = int(flight[0].frame_times_us[29])
+    assert comp.health_report(now).latency_ms == pytest.approx(6.5)
+    assert "latency p50 6.5 p99 29.3 ms" in comp.status_line(now)
+    summary = DaemonSummary(0.0, 0, 0, 0, 0, 0, lat, comp.stats, {}, {}, 0, 0)
+    assert summary.latency_percentile_ms(99) == latency_percentile_ms(lat, 99)
 
 
 def test_a_frame_ahead_of_the_attitude_waits_for_the_next_sample(flight: Any) -> None:

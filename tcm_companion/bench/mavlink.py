@@ -31,6 +31,7 @@ import numpy as np
 from ..io.transports import Transport, memory_pair, open_transport
 from ..mavlink import tcm_dialect as dialect
 from ..mavlink.codec import MavlinkCodec
+from ..service.companion import latency_percentile_ms
 
 KINDS = ("pty", "udp", "memory")
 PTY_BAUD = 921600
@@ -107,9 +108,9 @@ async def measure_link_latency_async(
         "kind": kind,
         "n": n,
         "frame_bytes": frame_bytes,
-        "median_ms": float(np.median(ms)),
-        "p90_ms": float(np.percentile(ms, 90)),
-        "p99_ms": float(np.percentile(ms, 99)),
+        "median_ms": latency_percentile_ms(ms, 50),
+        "p90_ms": latency_percentile_ms(ms, 90),
+        "p99_ms": latency_percentile_ms(ms, 99),
         "max_ms": float(ms.max()),
         "mean_ms": float(ms.mean()),
         "decode_faults": int(rx.stats["bad CRC"] + rx.stats["garbage bytes"]),

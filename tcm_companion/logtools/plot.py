@@ -537,7 +537,9 @@ def _plot_egomotion(fig: Figure, data: PlotData, t0: int) -> str:
 
 
 def _percentiles(x: np.ndarray) -> Sequence[tuple[str, float]]:
-    return [(f"p{p}", float(np.percentile(x, p))) for p in (50, 90, 99)]
+    from ..service.companion import latency_percentile_ms
+
+    return [(f"p{p}", latency_percentile_ms(x, p)) for p in (50, 90, 99)]
 
 
 def _plot_latency(fig: Figure, data: PlotData, t0: int) -> str:

@@ -68,7 +68,7 @@ import dataclasses
 import logging
 import math
 from collections import Counter, deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -104,6 +104,20 @@ _EGO_SOURCE = {
 
 #: A camera's expected frame rate when the driver does not give one (Hz).
 DEFAULT_CAMERA_HZ = 25.0
+
+
+def latency_percentile_ms(latencies_ms: Iterable[float], q: float) -> float:
+    """The ``q``-th percentile (0..100) of capture-to-MAVLink latencies (ms), NumPy's
+    linear interpolation between the closest ranks; NaN when there are none.
+
+    The one definition of every latency figure: the status line and
+    ``TCM_PIPELINE_HEALTH`` (:class:`Companion`), a run's :class:`~.plumbing.DaemonSummary`
+    (the SITL report, ``bench --daemon``) and the flight-log plots.
+    """
+    values = np.fromiter(latencies_ms, dtype=np.float64)
+    if not values.size:
+        return math.nan
+    return float(np.percentile(values, q))
 
 
 @dataclass(frozen=True)
@@ -467,10 +481,15 @@ class Companion:
         """The MAVLink bytes queued for the autopilot since the last call."""
         return self.endpoint.data_to_send()
 
-    def frame_sent(self, frame: FrameProcessed, sent_mono_us: int) -> None:
-        """``frame``'s output was written to the link at ``sent_mono_us``."""
-        if frame.result is not None:
-            self.latencies_ms.append((sent_mono_us - frame.capture_mono_us) / 1000.0)
+    def frame_sent(self, frame: FrameProcessed, sent_mono_us: int) -> float | None:
+        """``frame``'s output was written to the link at ``sent_mono_us``: its
+        capture-to-MAVLink latency (ms), counted in the latency figures (None: the frame
+        failed, nothing was sent for it)."""
+        if frame.result is None:
+            return None
+        latency_ms = (sent_mono_us - frame.capture_mono_us) / 1000.0
+        self.latencies_ms.append(latency_ms)
+        return latency_ms
 
     def discard_pending(self, now_mono_us: int) -> int:
         """At stop: frames still in their slots are dropped (counted); how many."""
@@ -726,8 +745,7 @@ class Companion:
         quality = 0
         if tr is not None and tr.valid and math.isfinite(tr.sigma_rad):
             quality = round(100 * max(0.0, 1.0 - tr.sigma_rad / 0.2))
-        lat = sorted(self.latencies_ms)
-        p50 = lat[len(lat) // 2] if lat else 0.0
+        p50 = latency_percentile_ms(self.latencies_ms, 50) if self.latencies_ms else 0.0
         return HealthReport(
             frame_rate_hz=self.frame_rate_hz(now_mono_us),
             latency_ms=p50,
@@ -749,10 +767,9 @@ class Companion:
             states[o.state] = states.get(o.state, 0) + 1
         ttcs = [o.ttc_s for o in objs if o.ttc_s == o.ttc_s]
         st = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "none"
-        lat = sorted(self.latencies_ms)
-        if lat:
-            p99 = lat[min(len(lat) - 1, int(0.99 * len(lat)))]
-            latency = f"latency p50 {lat[len(lat) // 2]:.1f} p99 {p99:.1f} ms"
+        if self.latencies_ms:
+            p50, p99 = (latency_percentile_ms(self.latencies_ms, q) for q in (50, 99))
+            latency = f"latency p50 {p50:.1f} p99 {p99:.1f} ms"
         else:
             latency = "latency n/a"  # no frame's output written yet
         problems = [s.problem for s in self.inputs.status(now_mono_us).values() if s.problem]

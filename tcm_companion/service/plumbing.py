@@ -26,8 +26,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-import numpy as np
-
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult
 from ..flightlog import topics
@@ -41,6 +39,7 @@ from .companion import (
     HealthChecked,
     Output,
     ParamsChanged,
+    latency_percentile_ms,
 )
 
 if TYPE_CHECKING:
@@ -113,9 +112,8 @@ class DaemonSummary:
         return self.captured == self.processed + self.failed + self.dropped + self.rejected
 
     def latency_percentile_ms(self, q: float) -> float:
-        if not self.latencies_ms:
-            return float("nan")
-        return float(np.percentile(np.asarray(self.latencies_ms), q))
+        """:func:`~.companion.latency_percentile_ms` of the run's latencies."""
+        return latency_percentile_ms(self.latencies_ms, q)
 
 
 def run_length_text(duration_s: float, planned_s: float | None, stopped_by: str = "") -> str:
@@ -235,8 +233,9 @@ class Plumbing:
         for out in outputs:
             if not isinstance(out, FrameProcessed) or out.result is None:
                 continue
-            self.companion.frame_sent(out, sent_mono_us)
-            self.latencies_ms.append((sent_mono_us - out.capture_mono_us) / 1000.0)
+            latency_ms = self.companion.frame_sent(out, sent_mono_us)
+            if latency_ms is not None:
+                self.latencies_ms.append(latency_ms)
             st = self.stage_ms
             st["handoff"].append((out.arrival_mono_us - out.capture_mono_us) / 1000.0)
             st["queue"].append((out.process_mono_us - out.arrival_mono_us) / 1000.0)

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -75,6 +76,7 @@ TRACK_FREQ_HZ = 0.1
 BALL_FREQ_HZ = 0.35
 BALL_AMPLITUDE_M = 1.0
 GRAVITY_MPS2 = 9.80665
+_GRAVITY_NED = np.array([0.0, 0.0, GRAVITY_MPS2])
 
 # Collision course: vehicle and ball velocities (track axes) and the contact time.
 _COLLISION_VEH_MPS = 1.5
@@ -136,37 +138,99 @@ class VehicleMotion:
         return out
 
     def R_ned_from_body(self, t_s: float | FloatArray) -> FloatArray:
-        """Body attitude (3, 3), or (N, 3, 3) for an array of times."""
+        """Body attitude (3, 3), or (N, 3, 3) for an array of times.
+
+        Element by element the arithmetic of the thrust-aligned frame (``z_b`` along
+        ``g - a``, ``x_b`` towards the heading) times the turbulence; the cross products
+        are written out as :func:`numpy.cross` computes them (``a1 b2 - a2 b1``, ...),
+        which gives the same bits without its per-call overhead.
+        """
         t = np.asarray(t_s, dtype=np.float64)
         flat = t.reshape(-1)
         acc = self.path.acceleration_ned_mps2(flat)
         # Thrust (along -z_body) supplies the specific force a - g.
-        z_b = np.array([0.0, 0.0, GRAVITY_MPS2]) - acc
-        z_b /= np.linalg.norm(z_b, axis=1, keepdims=True)
-        yaw = self.heading_rad + self._sines(self.yaw_terms, flat)
-        x_c = np.stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)], axis=1)
-        y_b = np.cross(z_b, x_c)
-        y_b /= np.linalg.norm(y_b, axis=1, keepdims=True)
-        x_b = np.cross(y_b, z_b)
-        base = np.stack([x_b, y_b, z_b], axis=2)
-        turb = _rot_zyx(
-            self._sines(self.roll_terms, flat),
-            self._sines(self.pitch_terms, flat),
-            np.zeros_like(flat),
+        z_b = _GRAVITY_NED - acc
+        z_b /= np.sqrt(np.add.reduce(z_b * z_b, axis=1, keepdims=True))
+        yaw_sines, roll_rad, pitch_rad = _sine_sums(
+            (self.yaw_terms, self.roll_terms, self.pitch_terms), flat
         )
+        yaw = self.heading_rad + yaw_sines
+        # y_b = z_b × x_c with x_c = (cos yaw, sin yaw, 0).
+        cyaw, syaw = np.cos(yaw), np.sin(yaw)
+        zero = np.zeros_like(yaw)
+        zx, zy, zz = z_b[:, 0], z_b[:, 1], z_b[:, 2]
+        y_b = np.empty_like(z_b)
+        y_b[:, 0] = zy * zero - zz * syaw
+        y_b[:, 1] = zz * cyaw - zx * zero
+        y_b[:, 2] = zx * syaw - zy * cyaw
+        y_b /= np.sqrt(np.add.reduce(y_b * y_b, axis=1, keepdims=True))
+        # x_b = y_b × z_b.
+        yx, yy, yz = y_b[:, 0], y_b[:, 1], y_b[:, 2]
+        base = np.empty((flat.shape[0], 3, 3))
+        base[:, 0, 0] = yy * zz - yz * zy
+        base[:, 1, 0] = yz * zx - yx * zz
+        base[:, 2, 0] = yx * zy - yy * zx
+        base[:, :, 1] = y_b
+        base[:, :, 2] = z_b
+        turb = _rot_zyx(roll_rad, pitch_rad, zero)
         R = base @ turb
         return R.reshape(*t.shape, 3, 3)
 
     def body_rates_rps(self, t_s: float | FloatArray, h_s: float = 1e-3) -> FloatArray:
         """Body angular rates ``(p, q, r)`` (rad/s), from ``Rᵀ dR/dt`` (central difference)."""
+        return self.attitude_and_rates(t_s, h_s)[1]
+
+    def attitude_and_rates(
+        self, t_s: float | FloatArray, h_s: float = 1e-3
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(R_ned_from_body, body_rates_rps)`` at ``t_s``: the attitude at ``t``,
+        ``t + h`` and ``t - h`` in one evaluation (each the same as on its own)."""
         t = np.asarray(t_s, dtype=np.float64)
-        R0 = self.R_ned_from_body(t)
-        dR = (self.R_ned_from_body(t + h_s) - self.R_ned_from_body(t - h_s)) / (2.0 * h_s)
+        R3 = self.R_ned_from_body(np.stack([t, t + h_s, t - h_s]))
+        R0 = R3[0]
+        dR = (R3[1] - R3[2]) / (2.0 * h_s)
         W = np.swapaxes(R0, -1, -2) @ dR
-        return 0.5 * np.stack(
+        rates = 0.5 * np.stack(
             [W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]],
             axis=-1,
         )
+        return R0, rates
+
+
+@lru_cache(maxsize=64)
+def _sine_table(
+    groups: tuple[tuple[tuple[float, float, float], ...], ...],
+) -> tuple[FloatArray, FloatArray, FloatArray, tuple[int, ...]]:
+    """Angular frequencies ``2π f`` (K, 1), phases (K, 1) and amplitudes (K, 1) of the
+    sinusoid groups' terms, one after the other, and where each group ends."""
+    terms = [term for group in groups for term in group]
+    omega = np.array([2.0 * math.pi * f for _, f, _ in terms], np.float64).reshape(-1, 1)
+    phase = np.array([ph for _, _, ph in terms], np.float64).reshape(-1, 1)
+    amp = np.array([a for a, _, _ in terms], np.float64).reshape(-1, 1)
+    ends = tuple(int(e) for e in np.cumsum([len(g) for g in groups]))
+    return omega, phase, amp, ends
+
+
+def _sine_sums(
+    groups: tuple[tuple[tuple[float, float, float], ...], ...], t: np.ndarray
+) -> list[np.ndarray]:
+    """Per group ``Σ amp · sin(2π f t + phase)`` at the times ``t`` (N,): one sine call
+    for all terms; each sum the same bits as :meth:`VehicleMotion._sines` (the same
+    products, added in the same order from zero)."""
+    omega, phase, amp, ends = _sine_table(groups)
+    s = omega * t[None, :]
+    s += phase
+    np.sin(s, out=s)
+    s *= amp
+    sums = []
+    start = 0
+    for end in ends:
+        out = np.zeros_like(t)
+        for k in range(start, end):
+            out = out + s[k]
+        sums.append(out)
+        start = end
+    return sums
 
 
 def _rot_zyx(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -174,14 +238,17 @@ def _rot_zyx(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray
     cr, sr = np.cos(roll), np.sin(roll)
     cp, sp = np.cos(pitch), np.sin(pitch)
     cy, sy = np.cos(yaw), np.sin(yaw)
-    return np.stack(
-        [
-            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-            np.stack([-sp, cp * sr, cp * cr], axis=-1),
-        ],
-        axis=-2,
-    )
+    out = np.empty((*np.shape(roll), 3, 3))
+    out[..., 0, 0] = cy * cp
+    out[..., 0, 1] = cy * sp * sr - sy * cr
+    out[..., 0, 2] = cy * sp * cr + sy * sr
+    out[..., 1, 0] = sy * cp
+    out[..., 1, 1] = sy * sp * sr + cy * cr
+    out[..., 1, 2] = sy * sp * cr - cy * sr
+    out[..., 2, 0] = -sp
+    out[..., 2, 1] = cp * sr
+    out[..., 2, 2] = cp * cr
+    return out
 
 
 def euler_zyx_rad(R_ned_from_body: FloatArray) -> FloatArray:

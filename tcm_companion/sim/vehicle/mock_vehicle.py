@@ -24,6 +24,7 @@ from .mock_types import MockAutopilotConfig, MockClock
 from .telemetry import TelemetryNoise
 
 _NOISE_SEED = 0x4D4F434B  # "MOCK"
+_TRUTH_CACHE_SIZE = 16  # exact states kept (a few frames' worth of instants)
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,9 @@ class MockVehicle:
         self._rng = np.random.default_rng(np.random.SeedSequence([_NOISE_SEED, config.seed]))
         self.noise = TelemetryNoise.draw(config.telemetry, config.noise, self._rng)
         self._att_cache: tuple[int, FloatArray, FloatArray] | None = None
+        # Exact states already computed, by scenario time, for the current motion: the
+        # camera and the scorer ask for the same instants (cleared when the path changes).
+        self._truth_cache: dict[float, VehicleTruth] = {}
 
     def t_s(self, now_us: int | None = None) -> float:
         """Scenario time (s) at ``now_us`` (default: the latest time seen)."""
@@ -119,10 +123,23 @@ class MockVehicle:
         return (now - self._clock.start_us) / 1e6 + self._t_offset_s
 
     def truth(self, now_us: int | None = None) -> VehicleTruth:
+        """The exact state at ``now_us`` (default: the latest time seen); each call
+        returns its own arrays."""
         t = self.t_s(now_us)
-        m = self.motion
+        hit = self._truth_cache.get(t)
+        if hit is None:
+            m = self.motion
+            hit = VehicleTruth(
+                t, m.position_ned_m(t), m.velocity_ned_mps(t), np.asarray(m.R_ned_from_body(t))
+            )
+            if len(self._truth_cache) >= _TRUTH_CACHE_SIZE:
+                del self._truth_cache[next(iter(self._truth_cache))]  # the oldest
+            self._truth_cache[t] = hit
         return VehicleTruth(
-            t, m.position_ned_m(t), m.velocity_ned_mps(t), np.asarray(m.R_ned_from_body(t))
+            hit.t_s,
+            hit.position_ned_m.copy(),
+            hit.velocity_ned_mps.copy(),
+            hit.R_ned_from_body.copy(),
         )
 
     def attitude(self, now_us: int) -> tuple[FloatArray, FloatArray]:
@@ -131,9 +148,8 @@ class MockVehicle:
         if self._att_cache is not None and self._att_cache[0] == now_us:
             return self._att_cache[1], self._att_cache[2]
         t = self.t_s(now_us)
-        eul, rates = self.noise.attitude(
-            euler_zyx_rad(self.motion.R_ned_from_body(t)), self.motion.body_rates_rps(t), self._rng
-        )
+        R_ned_from_body, rates_rps = self.motion.attitude_and_rates(t)
+        eul, rates = self.noise.attitude(euler_zyx_rad(R_ned_from_body), rates_rps, self._rng)
         self._att_cache = (now_us, eul, rates)
         return eul, rates
 
@@ -155,6 +171,7 @@ class MockVehicle:
         path = BrakingPath.start(self.motion.position_ned_m(t), vel, t, decel_mps2)
         self.motion = replace(self.motion, path=path)
         self._att_cache = None
+        self._truth_cache.clear()
         return Brake(
             now_us,
             float(np.linalg.norm(vel)),

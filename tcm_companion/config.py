@@ -11,6 +11,7 @@ dataclass is built, whatever set it (file, environment, ``--set``).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import re
 import tomllib
@@ -27,6 +28,8 @@ from .io.cameras.settings import CameraSettings
 from .service.companion import DaemonConfig
 from .service.endpoint_setup import MavlinkSettings
 
+log = logging.getLogger(__name__)
+
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown, of the wrong type or out of range.
@@ -38,13 +41,6 @@ class ConfigError(ValueError):
     def __init__(self, message: str, key: str = "") -> None:
         super().__init__(message)
         self.key = key
-
-
-@dataclass(frozen=True)
-class ReplayConfig:
-    # Telemetry received up to this long after a frame's capture time is available when
-    # the frame is processed (the daemon waits as long for the attitude after the frame).
-    telemetry_wait_us: int = 40_000
 
 
 @dataclass(frozen=True)
@@ -135,7 +131,6 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
 @dataclass(frozen=True)
 class AppConfig:
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
-    replay: ReplayConfig = field(default_factory=ReplayConfig)
     mavlink: MavlinkSettings = field(default_factory=MavlinkSettings)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     sim: SimConfig = field(default_factory=SimConfig)
@@ -475,7 +470,6 @@ RANGES: dict[str, RangeSpec] = {
             "min_window_px": "[0, 1000] px",
         },
     ),
-    **_ranges("replay", {"telemetry_wait_us": "[0, 1000000] µs"}),
     **_ranges("mavlink", {"signing_link_id": "[0, 255]"}),  # a uint8 of the signature
     **_ranges(
         "mavlink.endpoint",
@@ -581,7 +575,6 @@ def _stage_tables() -> dict[type, str]:
 _RANGE_TABLES: dict[type, str] = {
     PipelineConfig: "",  # its stages are tables of their own: "classifier", ...
     **_stage_tables(),
-    ReplayConfig: "replay",
     MavlinkSettings: "mavlink",
     typing.get_type_hints(MavlinkSettings)["endpoint"]: "mavlink.endpoint",
     DaemonConfig: "daemon",
@@ -956,10 +949,49 @@ def load_config(
         raise ConfigError(msg, exc.key) from None
 
 
-_TABLES = ("pipeline", "replay", "mavlink", "daemon", "sim", "camera", "logging")
+_TABLES = ("pipeline", "mavlink", "daemon", "sim", "camera", "logging")
+
+#: Keys that are no longer settings, and what replaced them. Still accepted, so that an
+#: older config.toml (or a flight log's recorded configuration) loads, but ignored: each
+#: is named in a warning when given (:func:`drop_deprecated`). A table that held nothing
+#: else (``[replay]``) may stay in the file, empty.
+DEPRECATED_KEYS: dict[tuple[str, str], str] = {
+    # Replay gave each frame the telemetry received up to this long after its capture,
+    # apart from the daemon's own wait; both now read the daemon's.
+    ("replay", "telemetry_wait_us"): (
+        "[daemon] attitude_wait_max_us (replay gives each frame the telemetry the daemon"
+        " would have had, waiting as long as the daemon does)"
+    ),
+}
+
+
+def drop_deprecated(doc: dict[str, Any], where: str = "config") -> tuple[dict[str, Any], list[str]]:
+    """``doc`` without the :data:`DEPRECATED_KEYS` (and without a table they leave empty),
+    and one warning for each that was given, naming it and its replacement."""
+    out = dict(doc)
+    warnings: list[str] = []
+    for (table, key), replacement in DEPRECATED_KEYS.items():
+        section = out.get(table)
+        if not isinstance(section, dict):
+            continue
+        if key in section:
+            section = {k: v for k, v in section.items() if k != key}
+            out[table] = section
+            warnings.append(
+                f"{_key_at(f'{where}: [{table}]', key)} is deprecated and ignored; its"
+                f" replacement is {replacement}: remove it"
+            )
+        if not section and table not in _TABLES:
+            del out[table]  # a table of deprecated keys only, now empty
+    return out, warnings
 
 
 def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
+    """The configuration of a parsed TOML document; a deprecated key is dropped with a
+    warning logged (:func:`drop_deprecated`)."""
+    doc, warnings = drop_deprecated(doc, where)
+    for w in warnings:
+        log.warning("%s", w)
     known = set(_TABLES) | {f.name for f in dataclasses.fields(PipelineConfig)}
     for key in doc:
         if key not in known:
@@ -971,7 +1003,6 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
         tables = {
             name: build_dataclass(cls, doc.get(name, {}), f"{where}: [{name}]")
             for name, cls in (
-                ("replay", ReplayConfig),
                 ("mavlink", MavlinkSettings),
                 ("daemon", DaemonConfig),
                 ("sim", SimConfig),

@@ -13,6 +13,7 @@ from tcm_companion.config import (
     AppConfig,
     ConfigError,
     config_from_dict,
+    config_to_toml,
     describe_range,
     load_config,
 )
@@ -226,3 +227,32 @@ def dataclasses_replace_threshold(cfg: AppConfig) -> AppConfig:
 
     cls = dataclasses.replace(cfg.pipeline.classifier, tcm_threshold=0.09)
     return dataclasses.replace(cfg, pipeline=dataclasses.replace(cfg.pipeline, classifier=cls))
+
+
+def test_deprecated_replay_wait_is_accepted_with_a_warning_and_ignored(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """[replay] telemetry_wait_us moved to [daemon] attitude_wait_max_us (one setting for
+    the daemon and replay): an older file still loads, the old key is named in a warning
+    with its replacement, and it changes nothing."""
+    old = tmp_path / "old.toml"
+    old.write_text(
+        "[replay]\ntelemetry_wait_us = 25000\n\n[daemon]\nattitude_wait_max_us = 30000\n"
+    )
+    with caplog.at_level("WARNING", logger="tcm_companion.config"):
+        cfg = load_config(old)
+    assert cfg.daemon.attitude_wait_max_us == 30_000
+    assert cfg == load_config(None, sets=["daemon.attitude_wait_max_us=30000"])
+    (msg,) = [r.getMessage() for r in caplog.records]
+    assert "[replay] telemetry_wait_us is deprecated" in msg
+    assert "[daemon] attitude_wait_max_us" in msg and str(old) in msg
+    # An empty [replay] is fine (nothing to warn about); other keys in it are not.
+    caplog.clear()
+    assert config_from_dict({"replay": {}}) == AppConfig() and not caplog.records
+    with pytest.raises(ConfigError, match=r"unknown table \[replay\]"):
+        config_from_dict({"replay": {"telemetry_wait_us": 1, "typo": 2}})
+    # Replay waits as the daemon does.
+    from tcm_companion.replay.scenario import telemetry_wait_us
+
+    assert telemetry_wait_us(cfg) == 30_000
+    assert "replay" not in config_to_toml(cfg)

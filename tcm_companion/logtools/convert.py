@@ -378,12 +378,13 @@ def scenario_to_log(
         from ..config import AppConfig
         from ..core.pipeline import Pipeline
         from ..core.telemetry import TelemetryBuffer
+        from ..replay.scenario import telemetry_wait_us
 
         cfg = config if config is not None else AppConfig()
         buffer = TelemetryBuffer()
         pipeline = Pipeline(scenario.camera, cfg.pipeline, telemetry=buffer)
         threshold = float(cfg.pipeline.classifier.tcm_threshold)
-        wait_us = int(cfg.replay.telemetry_wait_us)
+        wait_us = telemetry_wait_us(cfg)
         telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
 
     log_path.parent.mkdir(parents=True, exist_ok=True)

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from ..config import AppConfig, config_from_dict
+from ..config import AppConfig, config_from_dict, drop_deprecated
 from ..core.camera import CameraModel, camera_from_dict
 from ..core.pipeline import FrameResult
 from ..flightlog import topics as log_topics
@@ -113,7 +113,8 @@ def from_frame_counts(
 
 def log_config(path: str | Path) -> tuple[AppConfig, dict[str, float]]:
     """The configuration and the parameter values in force when the log started (a log
-    written before the time base moved to seconds is read in today's keys)."""
+    written before the time base moved to seconds is read in today's keys; deprecated
+    keys are dropped)."""
     meta = _metadata(Path(path))
     try:
         doc = tomllib.loads(meta.get("config", ""))
@@ -121,6 +122,9 @@ def log_config(path: str | Path) -> tuple[AppConfig, dict[str, float]]:
         raise LogReplayError(f"{path}: metadata config is not TOML: {exc}") from None
     params = {k: float(v) for k, v in json.loads(meta.get("params", "{}")).items()}
     doc, params = from_frame_counts(doc, params)
+    # Keys no longer read ([replay] telemetry_wait_us) had no effect on the daemon that
+    # wrote the log: dropped without the warning a config file gets.
+    doc, _ = drop_deprecated(doc)
     config = config_from_dict(doc, f"{path}: metadata")
     return config, params
 

@@ -1,8 +1,9 @@
 """Replay a recorded or simulated scenario through the same pipeline the daemon runs.
 
 Telemetry is handed to the pipeline in receive order, and a frame sees only what had
-arrived by ``capture time + telemetry_wait_us`` — what the daemon would have had when it
-processed that frame live. Anything with the scenario interface works: a directory read
+arrived by ``capture time + [daemon] attitude_wait_max_us`` — what the daemon, which
+waits at most that long for the attitude after a frame, would have had when it
+processed that frame live (:func:`telemetry_wait_us`). Anything with the scenario interface works: a directory read
 by :func:`tcm_companion.io.scenario.load_scenario` or a simulated scenario in memory.
 
 With ``[detection] backend = "boxes"`` the scenario's ``detections.csv`` rows (its
@@ -70,6 +71,13 @@ def boxes_by_frame(rows: Iterable[DetectionRow]) -> dict[int, list[Box]]:
     return out
 
 
+def telemetry_wait_us(config: AppConfig) -> int:
+    """How long after a frame's capture the telemetry it sees may have arrived: the
+    daemon's ``[daemon] attitude_wait_max_us``, its longest wait for the attitude after a
+    frame (the one setting; ``[replay] telemetry_wait_us`` is no longer read)."""
+    return int(config.daemon.attitude_wait_max_us)
+
+
 def run_replay(
     scenario: ScenarioLike,
     config: AppConfig,
@@ -84,7 +92,7 @@ def run_replay(
     pipe = pipeline or Pipeline(scenario.camera, config.pipeline)
     buffer = pipe.telemetry
     telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
-    wait = config.replay.telemetry_wait_us
+    wait = telemetry_wait_us(config)
     feeder = pipe.detector if isinstance(pipe.detector, BoxesDetector) else None
     boxes: dict[int, list[Box]] = {}
     if feeder is not None:

@@ -131,12 +131,12 @@ def kept_at(n_frames: int, fps: float, source_fps: float = 25.0) -> list[int]:
 def score_flight(scenario, frames, keep):  # type: ignore[no-untyped-def]
     """Accuracy, coverage after the 1-s warm-up and majority state per truth object, of
     the pipeline fed only frames ``keep`` (same telemetry)."""
-    from tcm_companion.eval.evaluate import match_frame, truth_ttc_s
+    from tcm_companion.eval.evaluate import match_frame
 
     cfg = AppConfig()
     pipe = Pipeline(scenario.camera, cfg.pipeline)
     tel = sorted(scenario.telemetry, key=lambda x: x.recv_us)
-    true_ttc = truth_ttc_s(scenario.truth, scenario.frame_times_us)
+    true_ttc = scenario.truth.ttc_s(scenario.frame_times_us)
     t0 = int(scenario.frame_times_us[0])
     recs = []
     for (i, _t, _img), result in zip(

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from matplotlib.legend import Legend
 
 from tcm_companion.core.classify import ClassifierConfig
-from tcm_companion.eval.evaluate import ObjectFrame, ScenarioEval, truth_ttc_s
+from tcm_companion.eval.evaluate import ObjectFrame, ScenarioEval
 from tcm_companion.eval.metrics import roc
 from tcm_companion.eval.report import (
     ROC_STYLES,
@@ -358,12 +358,12 @@ def test_frame_counts_have_integer_ticks(scenario_data: PlotData) -> None:
 def test_ttc_plot_draws_the_true_time_to_contact(scenario: Any, scenario_data: PlotData) -> None:
     (truth,) = scenario_data.truth
     assert truth.ttc_s is not None
-    # The evaluation's truth TTC, row for row (the plot's copy of the rule agrees).
-    expected = truth_ttc_s(scenario.truth, scenario.frame_times_us)
+    # The truth TTC the evaluation scores with (one rule: Truth.ttc_s), row for row.
+    expected = scenario.truth.ttc_s(scenario.frame_times_us)
     rows = np.nonzero(scenario.truth.object_id == truth.object_id)[0]
     rows = rows[np.argsort(scenario.truth.frame[rows])]
-    # (to 1e-4: the evaluation differentiates on seconds since the epoch, ~1e-5 relative)
     np.testing.assert_allclose(truth.ttc_s, expected[rows], rtol=1e-4, equal_nan=True)
+    np.testing.assert_array_equal(truth.ttc_s, expected[rows])
     assert np.isfinite(truth.ttc_s).sum() > 10
 
     fig = build_figures(scenario_data)[0]["ttc"]

@@ -207,3 +207,57 @@ def test_malformed_detections_name_the_line(broken: Path, row: str, message: str
     )
     with pytest.raises(ScenarioError, match=r"detections\.csv: " + message):
         load_scenario(broken)
+
+
+# -- truth: the one matching rule and the true time to contact ------------------------------
+def test_truth_matching_is_greedy_nearest_within_the_gate() -> None:
+    import math
+
+    from tcm_companion.io.truth import MATCH_GATE_RAD, match_truth
+
+    rel = np.array([10.0, 0.0, 0.0])  # 10 m north; radius 0.5 m: α = asin(0.05)
+    alpha = math.asin(0.05)
+    gate = MATCH_GATE_RAD + 2 * alpha
+
+    def bearing(az: float) -> np.ndarray:
+        return np.array([math.cos(az), math.sin(az), 0.0])
+
+    cands = [bearing(gate * 0.9), bearing(gate * 0.5), bearing(gate * 1.1)]
+    used: set[int] = set()
+    m = match_truth(rel, 0.5, cands, used)
+    assert (m.index, used) == (1, {1}) and m.matched
+    assert m.bearing_error_rad == pytest.approx(gate * 0.5)
+    assert m.alpha_true_rad == pytest.approx(alpha)
+    # A second truth object at the same place takes the next nearest free one ...
+    assert match_truth(rel, 0.5, cands, used).index == 0 and used == {0, 1}
+    # ... and a third none: the last candidate is outside the gate.
+    m = match_truth(rel, 0.5, cands, used)
+    assert not m.matched and m.index == -1 and used == {0, 1}
+    assert m.bearing_error_rad == pytest.approx(gate * 1.1)
+    assert match_truth(rel, 0.5, cands, set(), gate_rad=MATCH_GATE_RAD * 2).index == 1
+    assert not match_truth(rel, 0.5, [], set()).matched
+
+
+def test_truth_time_to_contact_is_range_over_closing_speed() -> None:
+    from tcm_companion.io.truth import Truth
+
+    n = 6
+    times = 1_700_000_000_000_000 + 40_000 * np.arange(n)  # Unix µs: 25 Hz
+    frame = np.r_[np.arange(n), np.arange(n)]
+    # object 1 closes at 2 m/s from 10 m; object 2 recedes
+    d1 = 10.0 - 2.0 * 0.04 * np.arange(n)
+    d2 = 10.0 + 2.0 * 0.04 * np.arange(n)
+    obj = np.zeros((2 * n, 3))
+    obj[:, 0] = np.r_[d1, d2]
+    truth = Truth(
+        frame=frame,
+        object_id=np.r_[np.ones(n, int), 2 * np.ones(n, int)],
+        moving=np.ones(2 * n, bool),
+        obj_ned_m=obj,
+        obj_radius_m=np.full(2 * n, 0.5),
+        veh_ned_m=np.zeros((2 * n, 3)),
+    )
+    ttc = truth.ttc_s(times)
+    np.testing.assert_allclose(ttc[:n], d1 / 2.0, rtol=1e-9)
+    assert np.isnan(ttc[n:]).all()
+    assert list(truth.rows_for_object(2)) == list(range(n, 2 * n))

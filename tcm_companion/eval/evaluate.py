@@ -29,14 +29,12 @@ import numpy as np
 
 from ..config import AppConfig
 from ..core.classify import METHODS, ClassifierConfig, Method, fused_score
-from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
-from ..io.scenario import Truth
+from ..io.truth import Truth, match_truth
 from ..replay.scenario import DetectionRow, ScenarioLike, run_replay, with_method
 from .metrics import confusion, roc
 
-MATCH_GATE_RAD = math.radians(5.0)
 #: A record captured this close before the end of the warm-up counts as after it
 #: (capture jitter; a quarter frame at the fastest rate supported).
 WARMUP_SLACK_S = JITTER_FRACTION / MAX_FRAME_RATE_HZ
@@ -88,43 +86,10 @@ class ScenarioEval:
     interval_disparities: dict[int, list[tuple[bool, float]]] = field(default_factory=dict)
 
 
-def truth_collision_course(
-    truth: Truth, frame_times_us: np.ndarray, miss_radii: float, horizon_s: float
-) -> np.ndarray:
-    """Per truth row: does the current relative velocity bring the object within
-    ``miss_radii`` of its own radius of the camera, within ``horizon_s``?"""
-    out = np.zeros(len(truth.frame), dtype=bool)
-    for oid in truth.object_ids:
-        rows = np.nonzero(truth.object_id == oid)[0]
-        rows = rows[np.argsort(truth.frame[rows])]
-        if len(rows) < 3:
-            continue
-        rel = truth.obj_ned_m[rows] - truth.veh_ned_m[rows]
-        vel = np.gradient(rel, frame_times_us[truth.frame[rows]] * 1e-6, axis=0)
-        speed2 = np.maximum(np.sum(vel * vel, axis=1), 1e-12)
-        t_cpa = -np.sum(rel * vel, axis=1) / speed2
-        cpa = np.linalg.norm(rel + vel * t_cpa[:, None], axis=1)
-        out[rows] = (
-            (t_cpa > 0) & (t_cpa < horizon_s) & (cpa < miss_radii * truth.obj_radius_m[rows])
-        )
-    return out
-
-
 def truth_ttc_s(truth: Truth, frame_times_us: np.ndarray) -> np.ndarray:
-    """True time to contact ``-d/ḋ`` (centre range) per truth row; NaN when receding."""
-    out = np.full(len(truth.frame), np.nan)
-    for oid in truth.object_ids:
-        rows = np.nonzero(truth.object_id == oid)[0]
-        rows = rows[np.argsort(truth.frame[rows])]
-        d = np.linalg.norm(truth.obj_ned_m[rows] - truth.veh_ned_m[rows], axis=1)
-        t = frame_times_us[truth.frame[rows]] * 1e-6
-        if len(rows) < 3:
-            continue
-        ddot = np.gradient(d, t)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tau = np.where(ddot < 0, -d / ddot, np.nan)
-        out[rows] = tau
-    return out
+    """:meth:`Truth.ttc_s <tcm_companion.io.truth.Truth.ttc_s>` (kept for the studies in
+    tools/ that call it by this name)."""
+    return truth.ttc_s(frame_times_us)
 
 
 def match_frame(
@@ -135,28 +100,21 @@ def match_frame(
     true_collision: np.ndarray | None = None,
     t0_us: int | None = None,
 ) -> tuple[list[ObjectFrame], int]:
-    """Truth objects of one frame matched to result objects (greedy by bearing).
+    """Truth objects of one frame matched to result objects (greedy by bearing,
+    :func:`~tcm_companion.io.truth.match_truth`).
 
     ``frame`` is the scenario's frame index (the truth's), which differs from the
     pipeline's own count when frames were dropped; ``t0_us`` the scenario's first capture
     time (for :attr:`ObjectFrame.time_s`)."""
     rows = truth.rows_for_frame(frame)
     objs = [o for o in result.objects if o.detected]
+    bearings = [o.bearing_ned for o in objs]
     used: set[int] = set()
     out = []
     for r in rows:
-        rel = truth.obj_ned_m[r] - truth.veh_ned_m[r]
-        dist = float(np.linalg.norm(rel))
-        b_true = normalize(rel)
-        alpha_true = math.asin(min(1.0, truth.obj_radius_m[r] / dist))
-        best, best_ang = -1, math.inf
-        for i, o in enumerate(objs):
-            if i in used:
-                continue
-            ang = float(angle_between(o.bearing_ned, b_true))
-            if ang < best_ang:
-                best, best_ang = i, ang
-        gate = MATCH_GATE_RAD + 2.0 * alpha_true
+        m = match_truth(
+            truth.obj_ned_m[r] - truth.veh_ned_m[r], truth.obj_radius_m[r], bearings, used
+        )
         base = dict(
             frame=frame,
             t_us=result.t_us,
@@ -166,11 +124,10 @@ def match_frame(
             true_ttc_s=float(true_ttc[r]),
             true_collision_course=bool(true_collision[r]) if true_collision is not None else False,
         )
-        if best < 0 or best_ang > gate:
+        if not m.matched:
             out.append(ObjectFrame(matched=False, **base))  # type: ignore[arg-type]
             continue
-        used.add(best)
-        o = objs[best]
+        o = objs[m.index]
         c = o.classification
         out.append(
             ObjectFrame(
@@ -181,8 +138,8 @@ def match_frame(
                 disparity=c.disparity,
                 omega_rad=c.omega_rad,
                 bsm_score=c.bsm_score,
-                bearing_error_rad=best_ang,
-                radius_error_rel=o.angular_radius_rad / alpha_true - 1.0,
+                bearing_error_rad=m.bearing_error_rad,
+                radius_error_rel=o.angular_radius_rad / m.alpha_true_rad - 1.0,
                 ttc_s=o.ttc_s,
                 collision_course=o.collision_course,
                 interval_frames=c.interval_frames,
@@ -295,10 +252,10 @@ def evaluate_scenario(
                 f'{scenario.name}: [detection] backend "boxes" needs the scenario\'s '
                 "detections.csv (sim export NAME DIR --detections writes one)"
             )
-    true_ttc = truth_ttc_s(truth, scenario.frame_times_us)
+    true_ttc = truth.ttc_s(scenario.frame_times_us)
     ttc_cfg = cfg.pipeline.ttc
-    true_coll = truth_collision_course(
-        truth, scenario.frame_times_us, ttc_cfg.collision_miss_radii, ttc_cfg.collision_max_ttc_s
+    true_coll = truth.collision_course(
+        scenario.frame_times_us, ttc_cfg.collision_miss_radii, ttc_cfg.collision_max_ttc_s
     )
     ev = ScenarioEval(scenario.name, (scenario.camera.width, scenario.camera.height))
     t0_us = int(scenario.frame_times_us[0]) if len(scenario.frame_times_us) else None

@@ -28,6 +28,7 @@ from ..core.camera import CameraModel, CameraModelError, Equirectangular, camera
 from ..core.telemetry import AttitudeSample, PositionSample, TelemetrySample
 from ..mavlink.samples import sample_from_message
 from .tlog import TlogError, TlogStats, read_tlog
+from .truth import Truth as Truth  # truth.csv's rows (and scoring against them: .truth)
 
 if TYPE_CHECKING:
     from .scenario_extras import Detection, TargetSpec
@@ -50,25 +51,6 @@ TRUTH_HEADER = [
 
 class ScenarioError(ValueError):
     """A scenario is malformed; the message names the file, line and problem."""
-
-
-@dataclass(frozen=True)
-class Truth:
-    """Ground truth rows as arrays (one entry per frame and object)."""
-
-    frame: np.ndarray  # int64
-    object_id: np.ndarray  # int64
-    moving: np.ndarray  # bool
-    obj_ned_m: np.ndarray  # (N, 3)
-    obj_radius_m: np.ndarray
-    veh_ned_m: np.ndarray  # (N, 3)
-
-    @property
-    def object_ids(self) -> list[int]:
-        return sorted({int(i) for i in self.object_id})
-
-    def rows_for_frame(self, frame: int) -> np.ndarray:
-        return np.nonzero(self.frame == frame)[0]
 
 
 @dataclass

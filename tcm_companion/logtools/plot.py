@@ -166,9 +166,9 @@ def load_scenario_data(scenario: Any, config: Any | None = None) -> PlotData:
     truth = getattr(scenario, "truth", None)
     if truth is not None and len(truth.frame):
         t_s = (times - times[0]) / 1e6
+        ttc_s = truth.ttc_s(times)
         for oid in truth.object_ids:
-            rows = np.nonzero(truth.object_id == oid)[0]
-            rows = rows[np.argsort(truth.frame[rows])]
+            rows = truth.rows_for_object(oid)
             rel = truth.obj_ned_m[rows] - truth.veh_ned_m[rows]
             az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))
             el = np.degrees(np.arctan2(-rel[:, 2], np.hypot(rel[:, 0], rel[:, 1])))
@@ -179,22 +179,10 @@ def load_scenario_data(scenario: Any, config: Any | None = None) -> PlotData:
                     moving=np.asarray(truth.moving[rows], dtype=bool),
                     azimuth_deg=az,
                     elevation_deg=el,
-                    ttc_s=_true_ttc_s(rel, t_s[truth.frame[rows]]),
+                    ttc_s=ttc_s[rows],
                 )
             )
     return data
-
-
-def _true_ttc_s(rel_ned_m: np.ndarray, t_s: np.ndarray) -> np.ndarray:
-    """True time to contact ``-d/ḋ`` (centre range over closing speed) at each row of one
-    object's truth; NaN where it is not closing. The same rule as the evaluation's
-    ``eval.evaluate.truth_ttc_s`` (which this layer may not import; a test compares them)."""
-    d = np.linalg.norm(rel_ned_m, axis=1)
-    if len(d) < 3:
-        return np.full(len(d), np.nan)
-    ddot = np.gradient(d, t_s)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(ddot < 0, -d / ddot, np.nan)
 
 
 # --------------------------------------------------------------------------------------

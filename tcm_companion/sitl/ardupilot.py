@@ -42,9 +42,9 @@ from typing import Any
 import numpy as np
 
 from ..config import AppConfig
-from ..core.frames import angle_between, normalize
 from ..core.pipeline import FrameResult
 from ..io.transports import open_transport
+from ..io.truth import match_truth
 from ..mavlink.endpoint import CompanionEndpoint
 from ..service.daemon import CameraInput, Daemon, DaemonSummary
 from ..service.endpoint_setup import make_endpoint, resolve_state_paths
@@ -61,6 +61,10 @@ BRAKE = mode_number("BRAKE")
 #: need our OBSTACLE_DISTANCE to arm), and the applet's action BRAKE.
 SITL_PARAMS: dict[str, float] = {"SCR_ENABLE": 1, "PRX1_TYPE": 0}
 APPLET_PARAMS: dict[str, float] = {"TCMA_ACTION": 2}
+#: The ball matches the daemon's object nearest its bearing within this plus its true
+#: angular diameter (:func:`~tcm_companion.io.truth.match_truth`, the evaluation's rule;
+#: these flights have always used a gate a degree wider than its MATCH_GATE_RAD, kept so
+#: that their reports and traces stay as they were).
 MATCH_GATE_RAD = math.radians(6.0)
 CLEAR_TEXT = r"^TCM: collision alarm clear"
 
@@ -158,13 +162,12 @@ class _Recorder:
             closing = (self._last[1] - dist) / ((result.t_us - self._last[0]) * 1e-6)
             ttc_true = dist / closing if closing > 1e-3 else math.inf
         self._last = (result.t_us, dist)
-        b = normalize(rel)
-        alpha = math.asin(min(1.0, radius / dist))
-        cands = [(float(angle_between(o.bearing_ned, b)), o) for o in result.objects if o.detected]
-        best = min(cands, key=lambda c: c[0]) if cands else None
+        objs = [o for o in result.objects if o.detected]
+        m = match_truth(rel, radius, [o.bearing_ned for o in objs], set(), MATCH_GATE_RAD)
+        alpha = m.alpha_true_rad
         nan = math.nan
-        if best is not None and best[0] < MATCH_GATE_RAD + 2 * alpha:
-            o = best[1]
+        if m.matched:
+            o = objs[m.index]
             self.matched += 1
             self.states[o.state] += 1
             self.trace.append(

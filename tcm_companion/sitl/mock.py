@@ -18,7 +18,7 @@ pose at each frame's capture time, while the companion only knows what the mock'
 brakes on a collision-course alarm, the camera sees the braking, so the loop is closed.
 
 Every processed frame is scored against the simulator's truth (objects matched by
-bearing), and :class:`SitlReport` summarises accuracy, latency, drops and faults. A run
+bearing: :func:`~tcm_companion.io.truth.match_truth`, the evaluation's rule), and :class:`SitlReport` summarises accuracy, latency, drops and faults. A run
 fails (``report.ok`` False, ``sitl`` exits 1) when nothing was processed, the frame
 counts do not add up, the autopilot rejected messages, the watchdog was withheld, or the
 accuracy of the decided object-frames after the warm-up is below ``min_accuracy`` —
@@ -45,11 +45,12 @@ import numpy as np
 
 from ..config import AppConfig
 from ..core.camera import CameraModel
-from ..core.frames import angle_between, normalize
+from ..core.frames import normalize
 from ..core.pipeline import FrameResult
 from ..flightlog.handle import FlightLog
 from ..io.aio import monotonic_us
 from ..io.transports import Transport, open_transport
+from ..io.truth import match_truth
 from ..logsetup import start_flight_log
 from ..service.daemon import Daemon
 from ..service.endpoint_setup import make_endpoint, persist, resolve_state_paths
@@ -60,7 +61,6 @@ from .virtual import RunTimer, VirtualTimeModel, frame_result_key
 
 log = logging.getLogger(__name__)
 
-MATCH_GATE_RAD = math.radians(5.0)
 WARMUP_S = 2.0  # object-frames before this (run time) are not scored
 #: Least accuracy of the decided object-frames after the warm-up for a run to pass.
 DEFAULT_MIN_ACCURACY = 0.90
@@ -214,29 +214,23 @@ class _Scorer:
         R_cam_from_ned = (truth.R_ned_from_body @ self.camera.R_body_from_cam).T
         warm = (result.t_us - self.start_mono_us) / 1e6 >= WARMUP_S
         objs = [o for o in result.objects if o.detected]
+        bearings = [o.bearing_ned for o in objs]
         used: set[int] = set()
         sc = self.score
         for obj in self.mock.plan.objects:  # balls and targets of any shape
             rel = obj.centre_ned_m(truth.t_s) - truth.position_ned_m
-            b_true = normalize(rel)
-            px = self.camera.pixel_from_bearing_cam(R_cam_from_ned @ b_true)
+            px = self.camera.pixel_from_bearing_cam(R_cam_from_ned @ normalize(rel))
             if not np.all(np.isfinite(px)) or not bool(self.camera.in_image(px)):
                 continue
             sc.truth_frames += 1
             sc.truth_after_warmup += int(warm)
-            alpha = math.asin(min(1.0, obj.bounding_radius_m / float(np.linalg.norm(rel))))
-            best, best_ang = -1, math.inf
-            for i, o in enumerate(objs):
-                ang = float(angle_between(o.bearing_ned, b_true))
-                if i not in used and ang < best_ang:
-                    best, best_ang = i, ang
-            if best < 0 or best_ang > MATCH_GATE_RAD + 2 * alpha:
+            m = match_truth(rel, obj.bounding_radius_m, bearings, used)
+            if not m.matched:
                 continue
-            used.add(best)
             sc.matched += 1
             if not warm:
                 continue
-            o = objs[best]
+            o = objs[m.index]
             sc.scored += 1
             sc.by_state[o.state] += 1
             if o.state != "unknown":

@@ -639,7 +639,12 @@ def _macro_texture(ground: Ground, rng: np.random.Generator) -> np.ndarray:
     dry = _smoothstep(-0.6, 1.8, lawn)[..., None]
     grass = np.asarray(ground.grass_rgb, np.float32)
     dry_rgb = np.asarray(ground.dry_grass_rgb, np.float32)
-    albedo = (grass * (1.0 - dry) + dry_rgb * dry) * np.exp(0.10 * mottle)[..., None]
+    # In place where a full-size temporary would be made (the same values, less memory
+    # traffic): albedo = (grass (1 - dry) + dry_rgb dry) · exp(0.10 mottle).
+    mottle_gain = np.exp(0.10 * mottle)[..., None]
+    albedo = grass * (1.0 - dry)
+    albedo += dry_rgb * dry
+    albedo *= mottle_gain
 
     def to_px(n: float, e: float) -> tuple[int, int]:
         return round((e + half) / texel * 4), round((half - n) / texel * 4)  # 2 fractional bits
@@ -669,9 +674,14 @@ def _macro_texture(ground: Ground, rng: np.random.Generator) -> np.ndarray:
         cv2.polylines(mask, [pts], False, 255, thickness, cv2.LINE_AA, shift=2)
         soft = cv2.GaussianBlur(mask.astype(np.float32) / 255.0, (0, 0), 1.5)
         cover = _smoothstep(0.35, 0.65, soft + 0.18 * edge)[..., None]
-        colour = np.asarray(ground.path_rgb, np.float32) * np.exp(0.10 * mottle)[..., None]
-        albedo = albedo * (1.0 - cover) + colour * cover
-    return np.clip(albedo / MACRO_SCALE + 0.5, 0, 255).astype(np.uint8)
+        colour = np.asarray(ground.path_rgb, np.float32) * mottle_gain
+        albedo *= 1.0 - cover
+        colour *= cover
+        albedo += colour
+    albedo /= MACRO_SCALE
+    albedo += 0.5
+    np.clip(albedo, 0, 255, out=albedo)
+    return albedo.astype(np.uint8)
 
 
 def _detail_texture(ground: Ground, rng: np.random.Generator) -> np.ndarray:

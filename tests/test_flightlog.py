@@ -794,11 +794,11 @@ def test_directory_removed_faults_then_recovers(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------
-# Size and CPU (printed, not asserted)
+# Every frame of a run in each format (size and CPU are measured by `tcm-companion bench
+# --daemon`, flight log writer lines, not by the unit tests)
 
 
-def test_size_and_cpu_per_frame(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
-    lines = []
+def test_every_frame_is_logged_in_each_format(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
     for fmt in ("jpeg", "png"):
         w = FlightLogWriter(
             LoggingConfig(image_format=fmt, queue_items=1024),
@@ -806,23 +806,13 @@ def test_size_and_cpu_per_frame(tmp_path: Path, sim_frames: list[np.ndarray]) ->
             wall_minus_mono_ns=WALL,
         )
         w.start({})
-        call_s = []
         for i, img in enumerate(sim_frames):
             t = T0 + 40_000 * i
-            c0 = time.perf_counter()
             w.log_frame(0, t, img)
-            call_s.append(time.perf_counter() - c0)
             w.log_annotations(0, t, [(100.0, 50.0, 6.0, "moving ttc 3.0 s")])
             w.log_json("/tcm/result", t, {"track": 1, "state": "moving", "ttc_s": 3.0})
         w.stop(timeout_s=30)
         s = w.stats
         assert s.frames_logged == len(sim_frames)
-        seconds = len(sim_frames) / 25
         counts = Counter(r.topic for r in read_log(tmp_path / fmt))
         assert counts["/camera0/image"] == len(sim_frames)
-        lines.append(
-            f"{fmt}: {s.bytes_written / seconds * 3600 / 1e9:.2f} GB/h at 25 Hz 360x220, "
-            f"writer CPU {s.writer_cpu_s / len(sim_frames) * 1e3:.2f} ms/frame, "
-            f"log_frame call median {np.median(call_s) * 1e6:.1f} us"
-        )
-    print("\n" + "\n".join(lines))

@@ -64,6 +64,48 @@ def write_frames(directory: Path, scenario: str, seconds: float) -> int:
     return n
 
 
+def measure_flight_log(frames_dir: Path, n: int = 100) -> dict[str, dict[str, float]]:
+    """The flight-log writer's cost per frame, in this process, on ``n`` frames of
+    ``frames_dir`` written as the daemon logs them (a frame, its annotations and a
+    result per frame at 25 Hz), for each image format: the producer's ``log_frame`` call
+    (median µs: what the loop pays), the writer thread's CPU (ms/frame) and the size
+    (GB/h at 25 Hz)."""
+    import numpy as np
+
+    from ..flightlog.writer import FlightLogWriter, LoggingConfig
+
+    images: list[np.ndarray] = []
+    for path in sorted(frames_dir.glob("*.png"))[:n]:
+        img = cv2.imread(str(path))
+        if img is not None:
+            images.append(img)
+    out: dict[str, dict[str, float]] = {}
+    if not images:
+        return out
+    for fmt in ("jpeg", "png"):
+        with tempfile.TemporaryDirectory(prefix="tcm-bench-log-") as d:
+            w = FlightLogWriter(LoggingConfig(image_format=fmt, queue_items=1024), d)
+            w.start({})
+            call_s = []
+            for i, img in enumerate(images):
+                t = 1_000_000 + 40_000 * i
+                c0 = time.perf_counter()
+                w.log_frame(0, t, img)
+                call_s.append(time.perf_counter() - c0)
+                w.log_annotations(0, t, [(100.0, 50.0, 6.0, "moving ttc 3.0 s")])
+                w.log_json("/tcm/result", t, {"track": 1, "state": "moving", "ttc_s": 3.0})
+            w.stop(timeout_s=30)
+            st = w.stats
+            seconds = len(images) / 25.0
+            out[fmt] = {
+                "frames": float(st.frames_logged),
+                "log_frame_call_median_us": float(np.median(call_s)) * 1e6,
+                "writer_cpu_ms_per_frame": st.writer_cpu_s / len(images) * 1e3,
+                "gb_per_hour": st.bytes_written / seconds * 3600 / 1e9,
+            }
+    return out
+
+
 def run_daemon_bench(
     duration_s: float = 60.0,
     scenario: str = "T90",
@@ -151,6 +193,7 @@ def run_daemon_bench(
         "rss_mib_max": max(rss) if rss else float("nan"),
         "log_bytes": log_bytes,
         "log_gb_per_hour": log_bytes / 1e9 * 3600.0 / max(duration_s, 1e-9),
+        "flight_log_writer": measure_flight_log(frames),
         **summary,
     }
     return result
@@ -170,6 +213,13 @@ def print_daemon_bench(result: dict[str, Any], out: Callable[[str], Any] = print
         f"  flight log: {r['log_bytes'] / 1e6:.1f} MB in {r['duration_s']:.0f} s"
         f" = {r['log_gb_per_hour']:.2f} GB/h   (target <= 1 GB/h)"
     )
+    for fmt, c in r.get("flight_log_writer", {}).items():
+        out(
+            f"  flight log writer ({fmt}, in-process, 360x220 at 25 Hz):"
+            f" log_frame call median {c['log_frame_call_median_us']:.1f} µs,"
+            f" writer CPU {c['writer_cpu_ms_per_frame']:.2f} ms/frame,"
+            f" {c['gb_per_hour']:.2f} GB/h"
+        )
     out(
         f"  RSS (MiB): start {r['rss_mib_start']:.1f}, middle {r['rss_mib_middle']:.1f}, end "
         f"{r['rss_mib_end']:.1f}, max {r['rss_mib_max']:.1f}   (target <= 200, flat)"

@@ -293,9 +293,15 @@ def _telemetry_from_records(records: list[Any]) -> tuple[list[TelemetrySample], 
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
+    return read_toml_text(path)[0]
+
+
+def read_toml_text(path: Path) -> tuple[dict[str, Any], str]:
+    """A scenario's ``scenario.toml``, parsed, and its text; ScenarioError when missing,
+    not UTF-8 or not TOML."""
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
+        text = path.read_text(encoding="utf-8")
+        return tomllib.loads(text), text
     except FileNotFoundError:
         raise ScenarioError(f"{path}: missing (every scenario needs one)") from None
     except tomllib.TOMLDecodeError as exc:
@@ -315,10 +321,12 @@ def not_utf8(path: Path | str) -> str:
     return "not UTF-8 text"
 
 
-def _csv_rows(path: Path, header: list[str]) -> Iterator[tuple[int, list[str]]]:
-    """Rows of a CSV with an exact header, as (line number, fields)."""
+def csv_rows(path: Path, header: list[str]) -> Iterator[tuple[int, list[str]]]:
+    """Rows of a scenario's CSV file with an exact header, as (line number, stripped
+    fields), blank lines skipped; ScenarioError (file, line) when missing, not UTF-8, or
+    a row has another number of fields."""
     try:
-        fh = open(path, newline="")
+        fh = open(path, newline="", encoding="utf-8")
     except FileNotFoundError:
         raise ScenarioError(f"{path}: missing") from None
     with fh:
@@ -363,7 +371,7 @@ def _float(path: Path, line: int, name: str, text: str) -> float:
 
 def _read_frames_csv(path: Path) -> np.ndarray:
     times: list[int] = []
-    for line, (f_text, t_text) in _csv_rows(path, FRAMES_HEADER):
+    for line, (f_text, t_text) in csv_rows(path, FRAMES_HEADER):
         frame = _int(path, line, "frame", f_text)
         t_us = _int(path, line, "t_us", t_text)
         if frame != len(times):
@@ -382,7 +390,7 @@ def _read_frames_csv(path: Path) -> np.ndarray:
 
 def _read_truth_csv(path: Path, n_frames: int) -> Truth:
     cols: dict[str, list[float]] = {h: [] for h in TRUTH_HEADER}
-    for line, row in _csv_rows(path, TRUTH_HEADER):
+    for line, row in csv_rows(path, TRUTH_HEADER):
         frame = _int(path, line, "frame", row[0])
         if not 0 <= frame < n_frames:
             raise ScenarioError(f"{path}: line {line}: frame {frame} is not in frames.csv")

@@ -15,13 +15,12 @@ from __future__ import annotations
 import csv
 import math
 import re
-import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .scenario import ScenarioError, not_utf8
+from .scenario import ScenarioError, csv_rows, read_toml_text
 
 SHAPES = ("sphere", "box", "cylinder", "disc", "other")
 DETECTIONS_HEADER = ["frame", "x_min", "y_min", "x_max", "y_max", "score", "label"]
@@ -40,15 +39,7 @@ class TargetSpec:
 def read_targets(root: str | Path) -> list[TargetSpec]:
     """The ``[[target]]`` tables of scenario directory ``root`` ([] when there are none)."""
     path = Path(root) / "scenario.toml"
-    try:
-        text = path.read_text(encoding="utf-8")
-        meta = tomllib.loads(text)
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: missing (every scenario needs one)") from None
-    except UnicodeDecodeError:
-        raise ScenarioError(f"{path}: {not_utf8(path)}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: {exc}") from None
+    meta, text = read_toml_text(path)
     tables = meta.get("target")
     if tables is None:
         return []
@@ -168,29 +159,13 @@ def read_detections_csv(
     """
     path = Path(path)
     out: list[Detection] = []
-    try:
-        fh = open(path, newline="", encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: missing") from None
-    with fh:
-        reader = csv.reader(fh)
-        try:
-            first = next(reader, None)
-            if first is None or [h.strip() for h in first] != DETECTIONS_HEADER:
-                raise ScenarioError(
-                    f"{path}: line 1: header must be {','.join(DETECTIONS_HEADER)!r}, got {first!r}"
-                )
-            for row in reader:
-                if not row or all(not c.strip() for c in row):
-                    continue
-                out.append(_detection_row(path, reader.line_num, row, n_frames, image_size, wraps))
-                if len(out) > 1 and out[-1].frame < out[-2].frame:
-                    raise ScenarioError(
-                        f"{path}: line {reader.line_num}: frame {out[-1].frame} after frame "
-                        f"{out[-2].frame} (rows must be in frame order)"
-                    )
-        except UnicodeDecodeError:
-            raise ScenarioError(f"{path}: {not_utf8(path)}") from None
+    for line, row in csv_rows(path, DETECTIONS_HEADER):
+        out.append(_detection_row(path, line, row, n_frames, image_size, wraps))
+        if len(out) > 1 and out[-1].frame < out[-2].frame:
+            raise ScenarioError(
+                f"{path}: line {line}: frame {out[-1].frame} after frame "
+                f"{out[-2].frame} (rows must be in frame order)"
+            )
     return out
 
 
@@ -202,13 +177,9 @@ def _detection_row(
     image_size: tuple[int, int] | None,
     wraps: bool,
 ) -> Detection:
-    if len(row) != len(DETECTIONS_HEADER):
-        raise ScenarioError(
-            f"{path}: line {line}: expected {len(DETECTIONS_HEADER)} fields, got {len(row)}"
-        )
     where = f"{path}: line {line}"
     try:
-        frame = int(row[0].strip())
+        frame = int(row[0])
     except ValueError:
         raise ScenarioError(f"{where}: frame must be an integer, got {row[0]!r}") from None
     if frame < 0 or (n_frames is not None and frame >= n_frames):
@@ -238,4 +209,4 @@ def _detection_row(
             raise ScenarioError(
                 f"{where}: box ({x0:g}, {y0:g}, {x1:g}, {y1:g}) leaves the {w}x{h} image"
             )
-    return Detection(frame, x0, y0, x1, y1, score, row[6].strip())
+    return Detection(frame, x0, y0, x1, y1, score, row[6])

@@ -16,6 +16,7 @@ command imports what it needs when it runs.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from .. import __version__
@@ -92,13 +93,52 @@ def _error_message(exc: BaseException) -> str | None:
     return None
 
 
+#: The exit status when stdout is closed under us (``tcm-companion sim list | head -1``):
+#: 128 + SIGPIPE, what the shell reports for ``cat``, ``yes`` or ``seq`` in the same pipe.
+EXIT_BROKEN_PIPE = 128 + 13
+
+
+def _stdout_to_devnull() -> None:
+    """Point the stdout file descriptor at /dev/null, so that the interpreter's own flush
+    of what is still buffered at exit neither fails nor prints ``Exception ignored ...
+    BrokenPipeError``."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return  # not a real file (a test's capture): nothing is flushed to a pipe at exit
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The console script. A reader that closes stdout early (``| head``) ends the command
+    quietly with :data:`EXIT_BROKEN_PIPE`, as other Unix tools do, whatever it was
+    printing (help and usage messages included)."""
+    try:
+        try:
+            status = _main(argv)
+        except SystemExit:
+            sys.stdout.flush()  # --help, --version: their text is still in the buffer
+            raise
+        sys.stdout.flush()
+        return status
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_BROKEN_PIPE
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     from ..io.allocator import tune_allocator
 
     tune_allocator()
     try:
         return int(args.func(args))
+    except BrokenPipeError:
+        raise  # stdout closed by its reader: main ends quietly, not "error: Broken pipe"
     except (ValueError, OSError) as exc:
         message = _error_message(exc)
         if message is None:

@@ -11,7 +11,9 @@ from .common import (
     add_config_arguments,
     add_quiet_argument,
     config_from_args,
+    positive_seconds,
     resolution,
+    whole_number,
 )
 
 
@@ -59,7 +61,7 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--frames",
-        type=int,
+        type=whole_number(1),
         default=200,
         metavar="N",
         help="frames timed per resolution and method (default 200)",
@@ -76,7 +78,7 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=float,
+        type=positive_seconds,
         default=60.0,
         metavar="S",
         help="--daemon: seconds to run (default 60)",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import sys
 from pathlib import Path
@@ -130,7 +131,75 @@ def resolution(text: str) -> tuple[int, int]:
     return size
 
 
+def positive_seconds(text: str) -> float:
+    """``argparse`` type of a duration: a finite number of seconds > 0."""
+    value = _number(text, float, "a number of seconds")
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
+    return value
+
+
+def non_negative_number(text: str) -> float:
+    """``argparse`` type of a scale or a delay: a finite number >= 0."""
+    value = _number(text, float, "a number")
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    return value
+
+
+def positive_number(text: str) -> float:
+    """``argparse`` type of a finite number > 0."""
+    value = _number(text, float, "a number")
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def whole_number(low: int, high: int | None = None) -> Any:
+    """``argparse`` type of a whole number in ``low..high`` (no upper bound if None)."""
+
+    def parse(text: str) -> int:
+        value = _number(text, int, "a whole number")
+        if value < low or (high is not None and value > high):
+            span = f">= {low}" if high is None else f"in {low}..{high}"
+            raise argparse.ArgumentTypeError(f"must be a whole number {span}, got {text!r}")
+        return value
+
+    parse.__name__ = "whole number"  # what argparse names in "invalid ... value"
+    return parse
+
+
+def _number(text: str, kind: Any, what: str) -> Any:
+    try:
+        return kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+
+
 def is_log(path: str) -> bool:
     """A flight log: an ``.mcap`` file or a directory of ``tcm-*.mcap`` parts."""
     p = Path(path)
     return p.suffix == ".mcap" or (p.is_dir() and any(p.glob("tcm-*.mcap")))
+
+
+class TolerantFrames:
+    """A scenario whose unreadable frames are reported and replayed as ``None`` (the
+    pipeline counts them as bad frames) instead of ending the replay."""
+
+    def __init__(self, scenario: Any) -> None:
+        self._inner = scenario
+        self.unreadable: list[tuple[int, str]] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+    def iter_frames(self) -> Any:
+        return self._inner.iter_frames_tolerant(lambda i, why: self.unreadable.append((i, why)))
+
+    def report_unreadable(self, limit: int = 10) -> None:
+        """``warning: frame N skipped: why`` on stderr for the first ``limit`` unreadable
+        frames, and how many more there were."""
+        for i, why in self.unreadable[:limit]:
+            print(f"warning: frame {i} skipped: {why}", file=sys.stderr)
+        if len(self.unreadable) > limit:
+            print(f"warning: ... {len(self.unreadable) - limit} more", file=sys.stderr)

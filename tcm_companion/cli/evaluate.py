@@ -4,6 +4,7 @@ against the truth of recorded or simulated scenarios."""
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -16,8 +17,10 @@ from .common import (
     add_config_arguments,
     add_quiet_argument,
     config_from_args,
+    positive_seconds,
     progress,
     resolution,
+    whole_number,
 )
 
 if TYPE_CHECKING:
@@ -48,6 +51,33 @@ def _scenarios(args: argparse.Namespace) -> list[Any]:
     return out
 
 
+def _no_decision(records: Sequence[Any], cls: Any) -> str | None:
+    """Why nothing can be scored in ``records`` ("no decision ..."), None when something
+    was decided after the warm-up."""
+    from ..eval.evaluate import after_warmup
+
+    after = after_warmup(list(records), cls)
+    if any(r.state != "unknown" for r in after):
+        return None
+    if not after:
+        return f"no decision: no object-frame after the {cls.interval_s:g} s warm-up"
+    return f"no decision: none of the {len(after)} object-frames after the warm-up was decided"
+
+
+class _FrameCounter:
+    """``evaluate_scenario``'s ``on_frame``: advances the progress bar and counts the
+    frames the pipeline had no attitude for (telemetry that does not cover them)."""
+
+    def __init__(self, bar: Any) -> None:
+        self.bar = bar
+        self.no_attitude = 0
+
+    def __call__(self, result: Any) -> None:
+        if not result.attitude_ok:
+            self.no_attitude += 1
+        self.bar.update(1)
+
+
 def run_evaluation(
     scenarios: Sequence[Any],
     config: AppConfig,
@@ -58,7 +88,12 @@ def run_evaluation(
     progress_bars: bool = True,
 ) -> str:
     """Evaluate scenarios at each resolution; return the printable report (and write plots
-    into ``out_dir`` unless it is None, or matplotlib, of the ``tools`` extra, is missing)."""
+    into ``out_dir`` unless it is None, or matplotlib, of the ``tools`` extra, is missing).
+
+    What makes the scores partial is printed on stderr as it is found (``warning: ...``,
+    as ``replay`` does) and repeated at the end of the report: the readers' warnings about
+    a scenario (a ``.tlog`` cut short or with junk appended), frames the telemetry's
+    attitude does not cover, and a scenario or group that decided nothing."""
     import importlib.util
 
     from ..eval.evaluate import at_resolution, evaluate_scenario, summarize
@@ -77,28 +112,48 @@ def run_evaluation(
         ttc_table,
     )
 
+    warnings: list[str] = []
+
+    def warn(text: str) -> None:
+        warnings.append(text)
+        print(f"warning: {text}", file=sys.stderr, flush=True)
+
+    for sc in scenarios:
+        for w in getattr(sc, "warnings", ()):
+            warn(f"{sc.name}: {w}")
+
     cls = config.pipeline.classifier
     evals = []
     groups = []
+    no_decision: list[str] = []
     for res in resolutions:
         group_evals = []
         for sc in scenarios:
             src = sc if res is None else at_resolution(sc, *res)
-            with progress(
-                src.n_frames, f"{sc.name} {src.camera.width}x{src.camera.height}", progress_bars
-            ) as bar:
+            size = f"{src.camera.width}x{src.camera.height}"
+            with progress(src.n_frames, f"{sc.name} {size}", progress_bars) as bar:
+                counter = _FrameCounter(bar)
                 ev = evaluate_scenario(
-                    src,
-                    config,
-                    with_bsm=with_bsm,
-                    intervals=intervals,
-                    on_frame=lambda _r: bar.update(1),
+                    src, config, with_bsm=with_bsm, intervals=intervals, on_frame=counter
                 )
+            if counter.no_attitude:
+                warn(
+                    f"{sc.name} {size}: {counter.no_attitude} of {src.n_frames} frames have no"
+                    " attitude (the telemetry does not cover them): their objects are not"
+                    " decided, which lowers the coverage"
+                )
+            why = _no_decision(ev.records, cls)
+            if why is not None:
+                no_decision.append(f"{sc.name} {size}: {why}")
             group_evals.append(ev)
         evals.extend(group_evals)
         records = [r for ev in group_evals for r in ev.records]
         label = "native" if res is None else f"{res[0]}x{res[1]}"
         groups.append((label, summarize(records, cls)))
+        if len(group_evals) > 1:
+            why = _no_decision(records, cls)
+            if why is not None:
+                no_decision.append(f"{label}, pooled: {why}")
         if out_dir is not None:
             out_dir.mkdir(parents=True, exist_ok=True)
             plot_roc(records, cls, out_dir / f"roc_{label}.png", f"ROC, pooled scenarios, {label}")
@@ -110,6 +165,7 @@ def run_evaluation(
         "Per method, static and moving flights pooled (paper Tables 2-3, Fig. 10):",
         methods_table(groups),
     ]
+    parts += [f"  {line}" for line in no_decision]
     ttc = ttc_table(evals)
     if ttc.count("\n"):
         parts += ["", "Time to contact (rows where both estimate and truth exist):", ttc]
@@ -119,6 +175,9 @@ def run_evaluation(
         parts += [f"  k={k:>2}  separation {v:+.3f}" for k, v in sep.items()]
         if out_dir is not None:
             plot_separation(sep, out_dir / "separation.png")
+    if warnings:
+        parts += ["", "Warnings (also on stderr; the scores cover what was usable):"]
+        parts += [f"  {w}" for w in warnings]
     if out_dir is not None:
         parts += ["", f"plots written to {out_dir}/"]
     elif no_plots:
@@ -193,14 +252,14 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=float,
+        type=positive_seconds,
         default=None,
         metavar="S",
         help="seconds of each --sim flight (default: the scenario's)",
     )
     p.add_argument(
         "--seed",
-        type=int,
+        type=whole_number(0),
         default=0,
         metavar="N",
         help="seed of the --sim flights (turbulence, noise)",
@@ -237,13 +296,17 @@ def add_parsers(sub: Any) -> None:
     add_quiet_argument(p)
     p.add_argument(
         "--duration",
-        type=float,
+        type=positive_seconds,
         default=None,
         metavar="S",
         help="seconds per flight (default: the scenario's)",
     )
     p.add_argument(
-        "--seed", type=int, default=0, metavar="N", help="seed of the flights (turbulence, noise)"
+        "--seed",
+        type=whole_number(0),
+        default=0,
+        metavar="N",
+        help="seed of the flights (turbulence, noise)",
     )
     p.add_argument(
         "--out",

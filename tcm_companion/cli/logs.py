@@ -9,10 +9,12 @@ from typing import Any
 from .common import (
     FORCE_HELP,
     TOOLS_HINT,
+    TolerantFrames,
     add_command,
     add_config_arguments,
     config_from_args,
     is_log,
+    whole_number,
 )
 
 
@@ -57,7 +59,16 @@ def cmd_plot(args: argparse.Namespace) -> int:
     if is_log(args.source):
         paths = plot_log(args.source, args.out)
     else:
-        paths = plot_scenario(args.source, args.out, config_from_args(args))
+        from ..io.scenario import load_scenario
+
+        config = config_from_args(args)
+        # as replay does: the reader's warnings (a .tlog cut short, junk appended) first,
+        # and an unreadable frame is a gap in the plots, reported, not the end of them
+        scenario = TolerantFrames(load_scenario(args.source))
+        for w in scenario.warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        paths = plot_scenario(scenario, args.out, config)
+        scenario.report_unreadable()
     for p in paths:
         print(p)
     for name, why in getattr(paths, "skipped", {}).items():
@@ -77,7 +88,7 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--force", action="store_true", help=FORCE_HELP)
     p.add_argument(
         "--camera-id",
-        type=int,
+        type=whole_number(0),
         default=0,
         metavar="N",
         help="which camera's frames to export (default 0)",

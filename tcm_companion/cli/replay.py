@@ -9,12 +9,14 @@ from typing import Any
 from .common import (
     FORCE_HELP,
     METHODS,
+    TolerantFrames,
     add_command,
     add_config_arguments,
     add_quiet_argument,
     config_from_args,
     is_log,
     progress,
+    whole_number,
 )
 
 
@@ -82,21 +84,6 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     for why in failed:
         print(f"check failed: {why}", file=sys.stderr)
     return 1 if failed else 0
-
-
-class _TolerantFrames:
-    """A scenario whose unreadable frames are reported and replayed as ``None`` (the
-    pipeline counts them as bad frames) instead of ending the replay."""
-
-    def __init__(self, scenario: Any) -> None:
-        self._inner = scenario
-        self.unreadable: list[tuple[int, str]] = []
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._inner, name)
-
-    def iter_frames(self) -> Any:
-        return self._inner.iter_frames_tolerant(lambda i, why: self.unreadable.append((i, why)))
 
 
 def _unknown_rows(previous: Any, frame_index: int, t_us: int) -> Any:
@@ -173,7 +160,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if is_log(args.scenario):
         return cmd_replay_log(args)
     config = with_method(config_from_args(args), args.method, bsm=args.method == "bsm")
-    scenario = _TolerantFrames(load_scenario(args.scenario))
+    scenario = TolerantFrames(load_scenario(args.scenario))
     for w in scenario.warnings:
         print(f"warning: {w}", file=sys.stderr)
     states: dict[str, int] = {}
@@ -197,10 +184,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             for o in result.objects:
                 states[o.state] = states.get(o.state, 0) + 1
             bar.update(1)
-    for i, why in scenario.unreadable[:10]:
-        print(f"warning: frame {i} skipped: {why}", file=sys.stderr)
-    if len(scenario.unreadable) > 10:
-        print(f"warning: ... {len(scenario.unreadable) - 10} more", file=sys.stderr)
+    scenario.report_unreadable()
     missing = ""
     if no_attitude:
         # the telemetry does not cover these frames (a .tlog that ends early, a damaged
@@ -248,7 +232,11 @@ def add_parsers(sub: Any) -> None:
         " log is whole (not truncated or damaged)",
     )
     p.add_argument(
-        "--camera-id", type=int, default=0, metavar="N", help="flight log: which camera (default 0)"
+        "--camera-id",
+        type=whole_number(0),
+        default=0,
+        metavar="N",
+        help="flight log: which camera (default 0)",
     )
     p.add_argument("--results", required=True, metavar="FILE", help="results CSV to write")
     p.add_argument("--force", action="store_true", help=FORCE_HELP)

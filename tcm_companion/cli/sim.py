@@ -11,7 +11,16 @@ import argparse
 from typing import Any
 
 from ..sim.scene.names import SCENARIO_NAMES
-from .common import CAMERA_PRESETS, FORCE_HELP, add_command, resolution
+from .common import (
+    CAMERA_PRESETS,
+    FORCE_HELP,
+    add_command,
+    non_negative_number,
+    positive_number,
+    positive_seconds,
+    resolution,
+    whole_number,
+)
 
 
 def _camera_arg(args: argparse.Namespace) -> Any:
@@ -79,31 +88,35 @@ def add_mock_autopilot_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--seed",
-        type=int,
+        type=whole_number(0),
         default=0,
         metavar="N",
         help="seed of the turbulence and telemetry noise",
     )
     parser.add_argument(
         "--noise",
-        type=float,
+        type=non_negative_number,
         default=1.0,
         metavar="X",
         help="telemetry noise scale (default 1; 0: exact)",
     )
     parser.add_argument(
-        "--sysid", type=int, default=1, metavar="N", help="MAVLink system id (default 1)"
+        "--sysid",
+        type=whole_number(1, 255),
+        default=1,
+        metavar="N",
+        help="MAVLink system id (default 1)",
     )
     parser.add_argument(
         "--ekf-origin-delay",
-        type=float,
+        type=non_negative_number,
         default=3.0,
         metavar="S",
         help="seconds after boot before LOCAL_POSITION_NED exists (ArduPilot SITL: ~40)",
     )
     parser.add_argument(
         "--brake-ttc",
-        type=float,
+        type=positive_number,
         default=3.0,
         metavar="S",
         help="brake on a collision-course status with time to contact below this",
@@ -160,13 +173,17 @@ def add_parsers(sub: Any) -> None:
     )
     e.add_argument(
         "--duration",
-        type=float,
+        type=positive_seconds,
         default=None,
         metavar="S",
         help="seconds of flight (default: the scenario's)",
     )
     e.add_argument(
-        "--seed", type=int, default=0, metavar="N", help="seed of the flight (turbulence, noise)"
+        "--seed",
+        type=whole_number(0),
+        default=0,
+        metavar="N",
+        help="seed of the flight (turbulence, noise)",
     )
     e.set_defaults(func=cmd_sim_export)
     ls = add_command(

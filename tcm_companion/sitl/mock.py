@@ -52,8 +52,14 @@ from ..io.aio import monotonic_us
 from ..io.transports import Transport, open_transport
 from ..io.truth import match_truth
 from ..logsetup import start_flight_log
+from ..mavlink.endpoint import CompanionEndpoint
 from ..service.daemon import Daemon
-from ..service.endpoint_setup import make_endpoint, persist, resolve_state_paths
+from ..service.endpoint_setup import (
+    MavlinkSettings,
+    make_endpoint,
+    persist,
+    resolve_state_paths,
+)
 from ..service.plumbing import CameraInput, DaemonSummary, NotifierLike, run_length_text
 from ..sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 from ..sim.vehicle.mock_autopilot_run import run_mock_autopilot
@@ -285,11 +291,16 @@ def _mock_config(config: AppConfig, unix_us_at_start: int) -> MockAutopilotConfi
 def _sim_camera(
     config: AppConfig,
     mock: Any,
-    model: CameraModel,
+    model: CameraModel | None,
     camera_factory: CameraFactory | None,
     **camera_kwargs: Any,
 ) -> list[CameraInput]:
+    """The simulated camera (``model``; None: the default 360x220 panorama)."""
+    from ..core.camera import Equirectangular
     from ..sim.scene.truth_camera import SimulatedCamera
+
+    if model is None:
+        model = Equirectangular(360, 220)
 
     fps = config.camera.source.fps
     camera_kwargs.setdefault("noise_dn", config.camera.source.sim_noise_dn)
@@ -301,6 +312,48 @@ def _sim_camera(
     return [CameraInput("camera0", model, source, fps=fps)]
 
 
+@dataclass
+class _Run:
+    """What either clock's run sets up around the companion: its MAVLink settings, the
+    scorer, the endpoint and the flight log (when asked for), and what the report needs
+    of the run (the mock, the timer, the accuracy floor)."""
+
+    mock: Any
+    timer: RunTimer
+    min_accuracy: float | None
+    settings: MavlinkSettings
+    scorer: _Scorer
+    endpoint: CompanionEndpoint
+    flight_log: FlightLog | None
+
+
+def _start_run(
+    config: AppConfig,
+    state_dir: str,
+    mock: Any,
+    cameras: list[CameraInput],
+    times_us: tuple[int, int],
+    log_dir: str | None,
+    timer: RunTimer,
+    min_accuracy: float | None,
+    **log_kwargs: Any,
+) -> _Run:
+    """Set up a run: state files in ``state_dir``, the scorer (warm-up from
+    ``times_us[0]``), the endpoint (started at ``times_us[1]``; its warnings logged) and
+    the flight log (``log_kwargs`` to :func:`~tcm_companion.logsetup.start_flight_log`)."""
+    settings = resolve_state_paths(config.mavlink, state_dir)
+    scorer = _Scorer(mock, cameras[0].model, times_us[0])
+    endpoint, warnings = make_endpoint(settings, times_us[1])
+    for w in warnings:
+        log.warning("%s", w)
+    flight_log = None
+    if log_dir is not None and config.logging.enabled:
+        flight_log = start_flight_log(
+            config, Path(log_dir), cameras, dict(endpoint.params.values), **log_kwargs
+        )
+    return _Run(mock, timer, min_accuracy, settings, scorer, endpoint, flight_log)
+
+
 def _file_sha256(paths: Sequence[Path]) -> str:
     h = hashlib.sha256()
     for p in paths:
@@ -310,20 +363,16 @@ def _file_sha256(paths: Sequence[Path]) -> str:
 
 
 def _report(
-    *,
-    mock: Any,
+    run: _Run,
     summary: DaemonSummary,
-    scorer: _Scorer,
-    flight_log: FlightLog | None,
-    statustexts: list[str],
     clock: Clock,
-    min_accuracy: float | None,
-    timer: RunTimer,
+    *,
     model: VirtualTimeModel | None = None,
     loop_lag_ms: float = 0.0,
     planned_s: float | None = None,
     stopped_early: bool = False,
 ) -> SitlReport:
+    mock, scorer, flight_log, min_accuracy = run.mock, run.scorer, run.flight_log, run.min_accuracy
     # Real time only: the daemon and the mock share this process's event loop. When the
     # machine stalls the whole loop (a loaded CI runner), a status can reach the mock over
     # a second after capture, and the mock rightly calls it stale. That is the machine,
@@ -368,7 +417,7 @@ def _report(
             failures.append(
                 f"no decision on {sc.truth_after_warmup} object-frames in view after the warm-up"
             )
-    wall_s, cpu_s = timer.elapsed()
+    wall_s, cpu_s = run.timer.elapsed()
     return SitlReport(
         scenario=mock.config.scenario,
         summary=summary,
@@ -389,7 +438,7 @@ def _report(
         stale_excused=excused,
         log=log_stats,
         log_sha256=log_sha,
-        statustexts=statustexts,
+        statustexts=run.endpoint.statustexts_queued,
         planned_s=planned_s,
         stopped_by="stop" if stopped_early else "",
     )
@@ -458,16 +507,10 @@ async def run_sitl(
         mock = MockAutopilot(mcfg, now_us)
     else:
         mcfg = mock.config
-    model_cam = camera_model
-    if model_cam is None:
-        from ..core.camera import Equirectangular
-
-        model_cam = Equirectangular(360, 220)
     if cameras is None:
-        cameras = _sim_camera(config, mock, model_cam, camera_factory)
+        cameras = _sim_camera(config, mock, camera_model, camera_factory)
 
     with _state_directory(state_dir, config) as sdir:
-        settings = resolve_state_paths(config.mavlink, sdir)
         if links is not None:
             mock_link, daemon_link = links
         else:
@@ -476,15 +519,15 @@ async def run_sitl(
             host, port = mock_link.local_address  # type: ignore[attr-defined]
             daemon_link = open_transport(f"udpout:{host}:{port}")
             await daemon_link.open()
-        scorer = _Scorer(mock, cameras[0].model, now_us)
-        endpoint, warnings = make_endpoint(settings, now_us)
-        for w in warnings:
-            log.warning("%s", w)
-        flight_log = None
-        if log_dir is not None and config.logging.enabled:
-            flight_log = start_flight_log(
-                config, Path(log_dir), cameras, dict(endpoint.params.values)
-            )
+        run = _start_run(
+            config, sdir, mock, cameras, (now_us, now_us), log_dir, timer, min_accuracy
+        )
+        settings, scorer, endpoint, flight_log = (
+            run.settings,
+            run.scorer,
+            run.endpoint,
+            run.flight_log,
+        )
         daemon = Daemon(
             replace(config, mavlink=settings),
             cameras,
@@ -535,14 +578,9 @@ async def run_sitl(
             await mock_link.close()
 
     return _report(
-        mock=mock,
-        summary=summary,
-        scorer=scorer,
-        flight_log=flight_log,
-        statustexts=endpoint.statustexts_queued,
-        clock="real",
-        min_accuracy=min_accuracy,
-        timer=timer,
+        run,
+        summary,
+        "real",
         loop_lag_ms=lag.max_ms,
         planned_s=duration_s,
         stopped_early=not ran_out,
@@ -589,38 +627,38 @@ def run_sitl_virtual(
     else:
         start = int(mock.now_us)
     unix_minus_mono_us = vm.unix_us_at_start - start
-    model_cam = camera_model
-    if model_cam is None:
-        from ..core.camera import Equirectangular
-
-        model_cam = Equirectangular(360, 220)
     holder: list[VirtualSitl] = []
 
     def now_us() -> int:
         return holder[0].now_us() if holder else start
 
-    cameras = _sim_camera(config, mock, model_cam, camera_factory, clock_us=now_us, sleep=no_sleep)
+    cameras = _sim_camera(
+        config, mock, camera_model, camera_factory, clock_us=now_us, sleep=no_sleep
+    )
     if config.daemon.opencv_threads:
         cv2.setNumThreads(config.daemon.opencv_threads)
 
     up = start + vm.companion_start_us  # the companion's start
     with _state_directory(state_dir, config) as sdir:
-        settings = resolve_state_paths(config.mavlink, sdir)
-        scorer = _Scorer(mock, cameras[0].model, start)
-        endpoint, warnings = make_endpoint(settings, up)
-        for w in warnings:
-            log.warning("%s", w)
-        flight_log = None
-        if log_dir is not None and config.logging.enabled:
-            flight_log = start_flight_log(
-                config,
-                Path(log_dir),
-                cameras,
-                dict(endpoint.params.values),
-                unix_minus_mono_us=unix_minus_mono_us,
-                started_unix_us=vm.unix_us_at_start,
-                deterministic=True,
-            )
+        run = _start_run(
+            config,
+            sdir,
+            mock,
+            cameras,
+            (start, up),
+            log_dir,
+            timer,
+            min_accuracy,
+            unix_minus_mono_us=unix_minus_mono_us,
+            started_unix_us=vm.unix_us_at_start,
+            deterministic=True,
+        )
+        settings, scorer, endpoint, flight_log = (
+            run.settings,
+            run.scorer,
+            run.endpoint,
+            run.flight_log,
+        )
         companion = Companion(
             [c.model for c in cameras],
             config.pipeline,
@@ -659,15 +697,5 @@ def run_sitl_virtual(
                 flight_log.stop()
 
     return _report(
-        mock=mock,
-        summary=summary,
-        scorer=scorer,
-        flight_log=flight_log,
-        statustexts=endpoint.statustexts_queued,
-        clock="virtual",
-        min_accuracy=min_accuracy,
-        timer=timer,
-        model=vm,
-        planned_s=duration_s,
-        stopped_early=sim.stopped_early,
+        run, summary, "virtual", model=vm, planned_s=duration_s, stopped_early=sim.stopped_early
     )

@@ -86,7 +86,7 @@ test-tools: $(STAMP)
 	        echo "make: installing$$missing (apt)"; \
 	        $$sudo apt-get update -qq >/dev/null && \
 	        $$sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null || \
-	        echo "make: could not install$$missing: their tests will skip"; \
+	        echo "make: could not install$$missing (apt): the pty and Lua tests will skip; install with: $${sudo:+$$sudo }apt-get install$$missing"; \
 	    else \
 	        echo "make: missing$$missing: the pty and Lua tests will skip; install with: sudo apt-get install$$missing"; \
 	    fi; \

@@ -172,3 +172,26 @@ def test_an_out_of_range_number_is_a_usage_error_naming_the_option(
     err = capsys.readouterr().err
     assert f"error: argument {option}: must be" in err
     assert "Traceback" not in err
+
+
+# -- set-up ----------------------------------------------------------------------------------
+def test_pyproject_gives_setuptools_no_deprecation_warning() -> None:
+    """The ``license = { text = ... }`` table made every install print setuptools'
+    deprecation warnings; the SPDX string (PEP 639) does not (nor may a License classifier
+    come back beside it)."""
+    code = (
+        "from setuptools.config.pyprojecttoml import apply_configuration\n"
+        "from setuptools.dist import Distribution\n"
+        "d = apply_configuration(Distribution(), 'pyproject.toml')\n"
+        "print(d.metadata.license_expression)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-W", "always", "-c", code],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    assert "Deprecat" not in proc.stderr, proc.stderr
+    assert proc.stdout.strip() == "MIT"

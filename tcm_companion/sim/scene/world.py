@@ -564,10 +564,20 @@ def _band_noise(
     k2[0, 0] = 1e-18
     k_lo2, k_hi2 = np.float32(wavelength_max_px**2), np.float32(wavelength_min_px**2)
     gain = k2 ** np.float32(-slope / 2.0)
-    gain *= np.exp(-((k2 * k_hi2) ** 2))
-    gain *= 1.0 - np.exp(-((k2 * k_lo2) ** 2))
+    # gain *= exp(-(k2 k_hi2)²) · (1 - exp(-(k2 k_lo2)²)), in place (the same values).
+    roll = k2 * k_hi2
+    np.square(roll, out=roll)
+    np.negative(roll, out=roll)
+    np.exp(roll, out=roll)
+    gain *= roll
+    np.multiply(k2, k_lo2, out=roll)
+    np.square(roll, out=roll)
+    np.negative(roll, out=roll)
+    np.exp(roll, out=roll)
+    np.subtract(1.0, roll, out=roll)
+    gain *= roll
     spec *= gain
-    out = scipy.fft.irfft2(spec, s=shape).astype(np.float32)
+    out = scipy.fft.irfft2(spec, s=shape).astype(np.float32, copy=False)
     out -= out.mean()
     out /= max(float(out.std()), 1e-12)
     return out
@@ -724,7 +734,10 @@ def _detail_texture(ground: Ground, rng: np.random.Generator) -> np.ndarray:
                         shift=4,
                     )
     tex = np.empty((px, px, 4), np.uint8)
-    tex[..., :3] = np.clip(mult * 128.0 + 0.5, 0, 255).astype(np.uint8)
+    mult *= 128.0  # clip(mult × 128 + 0.5) to uint8, in place
+    mult += 0.5
+    np.clip(mult, 0, 255, out=mult)
+    tex[..., :3] = mult.astype(np.uint8)
     tex[..., 3] = stones
     return tex
 
@@ -747,8 +760,13 @@ def _mip_atlas(tex: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray]:
     offsets = np.zeros((levels, 2), np.float32)
     x, y = s0 + 2, 0
     for k, level in enumerate(chain):
-        bordered = np.pad(level, ((1, 1), (1, 1), (0, 0)), mode="wrap")
-        img = np.clip(bordered + 0.5, 0, 255).astype(np.uint8)
+        if k == 0 and tex.dtype == np.uint8:
+            # uint8 → float32 → +0.5, clip, truncate is the identity: pad the uint8 texture
+            # itself (the same bytes without four passes over a 64 MB float copy).
+            img = np.pad(tex, ((1, 1), (1, 1), (0, 0)), mode="wrap")
+        else:
+            bordered = np.pad(level, ((1, 1), (1, 1), (0, 0)), mode="wrap")
+            img = np.clip(bordered + 0.5, 0, 255).astype(np.uint8)
         if k == 0:
             ox, oy = 0, 0
         else:

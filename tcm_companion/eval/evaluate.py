@@ -31,6 +31,7 @@ from ..config import AppConfig
 from ..core.classify import METHODS, ClassifierConfig, Method, fused_score
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
+from ..io.scenario_extras import Detection
 from ..io.truth import Truth, match_truth
 from ..replay.scenario import DetectionRow, ScenarioLike, run_replay, with_method
 from .metrics import confusion, roc
@@ -151,17 +152,6 @@ def match_frame(
     return out, len(objs) - len(used)
 
 
-@dataclass(frozen=True)
-class _ScaledRow:
-    frame: int
-    x_min: float
-    y_min: float
-    x_max: float
-    y_max: float
-    score: float
-    label: str
-
-
 class ResizedScenario:
     """A scenario seen through the same lens at another resolution (frames resized, and
     the boxes of its ``detections.csv`` scaled with them)."""
@@ -174,11 +164,11 @@ class ResizedScenario:
         self.telemetry = inner.telemetry
         self.truth = getattr(inner, "truth", None)
         rows = getattr(inner, "detections", None)
-        self.detections: list[_ScaledRow] | None = None
+        self.detections: list[Detection] | None = None
         if rows is not None:
             sx, sy = width / inner.camera.width, height / inner.camera.height
             self.detections = [
-                _ScaledRow(
+                Detection(
                     r.frame,
                     r.x_min * sx,
                     r.y_min * sy,

@@ -24,6 +24,7 @@ from ..core.classify import Method
 from ..core.detection import Box, BoxesDetector
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.telemetry import TelemetrySample
+from ..io.scenario_extras import Detection
 
 
 class ScenarioLike(Protocol):
@@ -50,16 +51,8 @@ def with_method(config: AppConfig, method: Method | None, bsm: bool = False) -> 
     return dataclasses.replace(config, pipeline=pipe)
 
 
-class DetectionRow(Protocol):
-    """One row of ``detections.csv`` (``io.scenario_extras.Detection`` has these)."""
-
-    frame: int
-    x_min: float
-    y_min: float
-    x_max: float
-    y_max: float
-    score: float
-    label: str
+#: One row of ``detections.csv``: the io reader's rows (and the simulated detector's).
+DetectionRow = Detection
 
 
 def boxes_by_frame(rows: Iterable[DetectionRow]) -> dict[int, list[Box]]:

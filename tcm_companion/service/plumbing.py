@@ -111,6 +111,13 @@ class DaemonSummary:
     def frames_balance(self) -> bool:
         return self.captured == self.processed + self.failed + self.dropped + self.rejected
 
+    def frames_text(self) -> str:
+        """``captured 100 = processed 97 + dropped 2 + failed 1 + rejected 0``."""
+        return (
+            f"captured {self.captured} = processed {self.processed} + dropped {self.dropped}"
+            f" + failed {self.failed} + rejected {self.rejected}"
+        )
+
     def latency_percentile_ms(self, q: float) -> float:
         """:func:`~.companion.latency_percentile_ms` of the run's latencies."""
         return latency_percentile_ms(self.latencies_ms, q)

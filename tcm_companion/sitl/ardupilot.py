@@ -347,8 +347,7 @@ class FlightReport:
         if self.summary is not None:
             s = self.summary
             out.append(
-                f"  daemon: captured {s.captured} = processed {s.processed} + dropped {s.dropped}"
-                f" + failed {s.failed} + rejected {s.rejected}; latency p50"
+                f"  daemon: {s.frames_text()}; latency p50"
                 f" {s.latency_percentile_ms(50):.1f} ms, p99 {s.latency_percentile_ms(99):.1f} ms;"
                 f" faults {s.faults or 'none'}"
             )

@@ -163,9 +163,7 @@ class SitlReport:
         ran = run_length_text(s.duration_s, self.planned_s, self.stopped_by)
         out = [
             f"SITL {self.scenario}: {ran}, {self.clock} clock",
-            f"  frames: captured {s.captured} = processed {s.processed} + dropped {s.dropped}"
-            f" + failed {s.failed} + rejected {s.rejected}"
-            f" ({'balanced' if s.frames_balance else 'NOT BALANCED'})",
+            f"  frames: {s.frames_text()} ({'balanced' if s.frames_balance else 'NOT BALANCED'})",
             f"  latency capture->MAVLink: {latency}{modelled}",
             f"  objects: {sc.matched}/{sc.truth_frames} object-frames matched; after {WARMUP_S:.0f} s"
             f" warm-up: {self.accuracy_text()}, coverage {coverage}",

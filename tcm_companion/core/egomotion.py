@@ -133,17 +133,17 @@ def _unit(v: FloatArray) -> FloatArray:
         return np.asarray(v * (1.0 / np.sqrt(np.einsum("ij,ij->i", v, v)))[:, None])
 
 
-def _tangent_basis(t: FloatArray) -> FloatArray:
-    """(3, 2): two orthonormal vectors across unit ``t`` (scalar code: np.cross on one
-    vector costs tens of microseconds)."""
-    tx, ty, tz = (float(x) for x in t)
+def _frame_across(t: FloatArray) -> FloatArray:
+    """(3, 3) rows ``[T̂, e1, e2]``: unit ``t`` and two orthonormal vectors across it
+    (scalar code: np.cross and np.stack on one vector cost tens of microseconds)."""
+    tx, ty, tz = t.tolist()
     if abs(tx) < 0.9:  # e1 = t × x̂
         e1 = (0.0, tz, -ty)
     else:  # e1 = t × ŷ
         e1 = (-tz, 0.0, tx)
     k = 1.0 / math.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
     a, b, c = e1[0] * k, e1[1] * k, e1[2] * k
-    return np.array([[a, ty * c - tz * b], [b, tz * a - tx * c], [c, tx * b - ty * a]])
+    return np.array([[tx, ty, tz], [a, b, c], [ty * c - tz * b, tz * a - tx * c, tx * b - ty * a]])
 
 
 def translation_from_bearings(
@@ -349,15 +349,16 @@ def _refine(
     # are still large: a start far off (large rotation error) needs a few more.
     n_min = max(cfg.refine_iterations, 1)
     n_iter = max(cfg.max_refine_iterations, n_min)
+    lam_eye = lam * np.eye(3)
+    dot_row = dot[None, :]
     for it in range(n_iter + 1):
-        V = np.empty((3, 3))
-        V[0] = t
-        V[1:] = _tangent_basis(t).T
+        V = _frame_across(t)
         P = V @ blocks
         Vm, Vb1, c0 = P[:, :n], P[:, n : 2 * n], P[0, 2 * n :]
         c1 = Vb1[0]
         if use_rot:
-            Vm = Vm + np.outer(V @ omega, dot) - Vb1 * (omega @ b0T)
+            # (np.outer(V @ ω, dot), written as the product it is, without its checks)
+            Vm = Vm + (V @ omega)[:, None] * dot_row - Vb1 * (omega @ b0T)
         res = Vm[0]
         g2 = np.maximum(2.0 - c0 * c0 - c1 * c1, 1e-12)  # gain²
         q = res * res / g2  # r²
@@ -377,12 +378,12 @@ def _refine(
         JT[:2] = Vm[1:]
         if use_rot:
             # d(T̂·m')/dω = b1 × (T̂ × b0) = (b0·b1) T̂ - (b1·T̂) b0
-            np.subtract(np.outer(t, dot), b0T * c1, out=JT[2:])
+            np.subtract(t[:, None] * dot_row, b0T * c1, out=JT[2:])
         JwT = JT * w
         A = JwT @ JT.T
         g = JwT @ res
         if use_rot:
-            A[2:, 2:] += lam * np.eye(3)
+            A[2:, 2:] += lam_eye
             g[2:] += lam * omega
         try:
             step = np.linalg.solve(A, -g)
@@ -392,7 +393,8 @@ def _refine(
         t = t / math.sqrt(float(t @ t))
         if use_rot:
             omega = omega + step[2:]
-        if it + 1 >= n_min and float(np.max(np.abs(step))) < cfg.step_tolerance_rad:
+        tol = cfg.step_tolerance_rad  # (all below it: np.max(np.abs(step)) < tol, NaN too)
+        if it + 1 >= n_min and all(abs(x) < tol for x in step.tolist()):
             n_iter = it + 1  # one more pass for the residuals at the solution
     # The information of the last step's normal equations (weights one step old) is
     # accurate enough for an uncertainty.

@@ -20,8 +20,9 @@ histories that span less time.
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -41,12 +42,26 @@ def frames_to_cover(span_s: float, rate_hz: float = MAX_FRAME_RATE_HZ) -> int:
 def median_period_s(times_us: Iterable[int]) -> float:
     """Median step between consecutive capture times (s), given in either order; NaN
     with fewer than two."""
-    t = np.fromiter(times_us, dtype=np.float64)
-    if len(t) < 2:
+    t = [float(x) for x in times_us]
+    steps = [s for a, b in itertools.pairwise(t) if (s := abs(b - a)) > 0]
+    return median(steps) * 1e-6 if steps else math.nan
+
+
+def median(values: Sequence[float] | np.ndarray) -> float:
+    """``float(np.median(values))`` of a 1-D sequence, to the bit, without its overhead
+    (tens of microseconds per call, which the per-object path paid several times).
+
+    The middle value, or the mean of the two middle values computed as numpy does
+    (``(a + b) / 2``); NaN when empty or when any value is NaN (sorted last).
+    """
+    v = np.sort(np.asarray(values, dtype=np.float64))
+    n = len(v)
+    if n == 0 or v[-1] != v[-1]:
         return math.nan
-    steps = np.abs(np.diff(t))
-    steps = steps[steps > 0]
-    return float(np.median(steps)) * 1e-6 if len(steps) else math.nan
+    k = n // 2
+    if n % 2:
+        return float(v[k])
+    return (float(v[k - 1]) + float(v[k])) / 2.0
 
 
 def jitter_slack_s(period_s: float) -> float:

@@ -67,11 +67,13 @@ class Observation:
     centroid_px: tuple[float, float]
     touches_border: bool = False
     label: str = ""  # what the detector called it ("" when it does not say)
+    # Whether the local-level bearing is known (the frame had an attitude): decided once
+    # here, since the classifier, the looming fit and the tracker ask many times a frame.
+    has_attitude: bool = field(init=False, repr=False, compare=False)
 
-    @property
-    def has_attitude(self) -> bool:
-        """Whether the local-level bearing is known (the frame had an attitude)."""
-        return bool(np.all(np.isfinite(self.bearing_ned)))
+    def __post_init__(self) -> None:
+        finite = all(math.isfinite(x) for x in np.asarray(self.bearing_ned).ravel().tolist())
+        object.__setattr__(self, "has_attitude", finite)
 
 
 @dataclass

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .frames import FloatArray
-from .timebase import jitter_slack_s
+from .timebase import jitter_slack_s, median
 
 
 @dataclass(frozen=True)
@@ -84,8 +84,8 @@ def theil_sen_slope(t_s: FloatArray, y: FloatArray) -> tuple[float, float]:
     if not np.any(keep):
         return math.nan, math.nan
     slopes = (v[j] - v[i])[keep] / dt[keep]
-    med = float(np.median(slopes))
-    spread = 1.4826 * float(np.median(np.abs(slopes - med)))
+    med = median(slopes)
+    spread = 1.4826 * median(np.abs(slopes - med))
     return med, spread
 
 
@@ -110,7 +110,7 @@ def estimate_ttc(
         return nothing
     steps = np.diff(t)
     steps = steps[np.isfinite(steps) & (steps > 0)]
-    slack_s = jitter_slack_s(float(np.median(steps)) if len(steps) else math.nan)
+    slack_s = jitter_slack_s(median(steps) if len(steps) else math.nan)
     ok = np.isfinite(t) & (t[-1] - t < config.window_s - slack_s)
     ok &= np.isfinite(a) & (a > 0)
     if ok.sum() < config.min_samples:
@@ -130,18 +130,18 @@ def estimate_ttc(
     rel = stderr / slope
     # A straight-line fit over the window measures the looming rate at the window's
     # middle (ln sin α is convex in time on an approach); contact is that much closer now.
-    ttc = 1.0 / slope - float(t[-1] - np.median(t))
+    ttc = 1.0 / slope - float(t[-1] - median(t))
     if ttc <= 0:
         ttc = 1.0 / slope
     # Bearing rate from the first and last thirds (robust to one bad bearing).
     n3 = max(1, len(t) // 3)
-    b_first = np.median(b[:n3], axis=0)
-    b_last = np.median(b[-n3:], axis=0)
-    dt = float(np.median(t[-n3:]) - np.median(t[:n3]))
+    b_first = np.array([median(b[:n3, k]) for k in range(3)])
+    b_last = np.array([median(b[-n3:, k]) for k in range(3)])
+    dt = median(t[-n3:]) - median(t[:n3])
     if dt <= 0:
         return TTCEstimate(ttc, slope, math.nan, False, rel)
     cosang = float(np.dot(b_first, b_last) / (np.linalg.norm(b_first) * np.linalg.norm(b_last)))
     omega = math.acos(max(-1.0, min(1.0, cosang))) / dt
-    miss = omega * ttc / math.sin(float(np.median(a[-n3:])))
+    miss = omega * ttc / math.sin(median(a[-n3:]))
     collision = miss < config.collision_miss_radii and ttc < config.collision_max_ttc_s
     return TTCEstimate(ttc, slope, miss, collision, rel)

@@ -350,7 +350,8 @@ def csv_rows(path: Path, header: list[str]) -> Iterator[tuple[int, list[str]]]:
             raise ScenarioError(f"{path}: {not_utf8(path)}") from None
 
 
-def _int(path: Path, line: int, name: str, text: str) -> int:
+def int_field(path: Path, line: int, name: str, text: str) -> int:
+    """Field ``name`` of a CSV line as an integer, else a ScenarioError naming it."""
     try:
         return int(text)
     except ValueError:
@@ -359,7 +360,8 @@ def _int(path: Path, line: int, name: str, text: str) -> int:
         ) from None
 
 
-def _float(path: Path, line: int, name: str, text: str) -> float:
+def float_field(path: Path, line: int, name: str, text: str) -> float:
+    """Field ``name`` of a CSV line as a finite number, else a ScenarioError naming it."""
     try:
         value = float(text)
     except ValueError:
@@ -372,8 +374,8 @@ def _float(path: Path, line: int, name: str, text: str) -> float:
 def _read_frames_csv(path: Path) -> np.ndarray:
     times: list[int] = []
     for line, (f_text, t_text) in csv_rows(path, FRAMES_HEADER):
-        frame = _int(path, line, "frame", f_text)
-        t_us = _int(path, line, "t_us", t_text)
+        frame = int_field(path, line, "frame", f_text)
+        t_us = int_field(path, line, "t_us", t_text)
         if frame != len(times):
             raise ScenarioError(
                 f"{path}: line {line}: frame {frame} out of order (expected {len(times)})"
@@ -391,18 +393,18 @@ def _read_frames_csv(path: Path) -> np.ndarray:
 def _read_truth_csv(path: Path, n_frames: int) -> Truth:
     cols: dict[str, list[float]] = {h: [] for h in TRUTH_HEADER}
     for line, row in csv_rows(path, TRUTH_HEADER):
-        frame = _int(path, line, "frame", row[0])
+        frame = int_field(path, line, "frame", row[0])
         if not 0 <= frame < n_frames:
             raise ScenarioError(f"{path}: line {line}: frame {frame} is not in frames.csv")
-        obj = _int(path, line, "object_id", row[1])
-        moving = _int(path, line, "moving", row[2])
+        obj = int_field(path, line, "object_id", row[1])
+        moving = int_field(path, line, "moving", row[2])
         if moving not in (0, 1):
             raise ScenarioError(f"{path}: line {line}: moving must be 0 or 1, got {row[2]!r}")
         cols["frame"].append(frame)
         cols["object_id"].append(obj)
         cols["moving"].append(moving)
         for name, text in zip(TRUTH_HEADER[3:], row[3:]):
-            cols[name].append(_float(path, line, name, text))
+            cols[name].append(float_field(path, line, name, text))
         if cols["obj_radius_m"][-1] <= 0:
             raise ScenarioError(f"{path}: line {line}: obj_radius_m must be positive")
     return Truth(

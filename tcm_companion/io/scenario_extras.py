@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .scenario import ScenarioError, csv_rows, read_toml_text
+from .scenario import ScenarioError, csv_rows, float_field, int_field, read_toml_text
 
 SHAPES = ("sphere", "box", "cylinder", "disc", "other")
 DETECTIONS_HEADER = ["frame", "x_min", "y_min", "x_max", "y_max", "score", "label"]
@@ -178,22 +178,12 @@ def _detection_row(
     wraps: bool,
 ) -> Detection:
     where = f"{path}: line {line}"
-    try:
-        frame = int(row[0])
-    except ValueError:
-        raise ScenarioError(f"{where}: frame must be an integer, got {row[0]!r}") from None
+    frame = int_field(path, line, "frame", row[0])
     if frame < 0 or (n_frames is not None and frame >= n_frames):
         raise ScenarioError(f"{where}: frame {frame} is not in frames.csv")
-    vals: list[float] = []
-    for name, text in zip(DETECTIONS_HEADER[1:6], row[1:6]):
-        try:
-            v = float(text)
-        except ValueError:
-            raise ScenarioError(f"{where}: {name} must be a number, got {text!r}") from None
-        if not math.isfinite(v):
-            raise ScenarioError(f"{where}: {name} must be finite, got {text!r}")
-        vals.append(v)
-    x0, y0, x1, y1, score = vals
+    x0, y0, x1, y1, score = (
+        float_field(path, line, name, text) for name, text in zip(DETECTIONS_HEADER[1:6], row[1:6])
+    )
     if not 0.0 <= score <= 1.0:
         raise ScenarioError(f"{where}: score must be in [0, 1], got {score:g}")
     if not y1 > y0:

@@ -195,3 +195,35 @@ def test_pyproject_gives_setuptools_no_deprecation_warning() -> None:
     )
     assert "Deprecat" not in proc.stderr, proc.stderr
     assert proc.stdout.strip() == "MIT"
+
+
+# -- a scenario without a file the command needs ------------------------------------------------
+def test_eval_of_a_scenario_without_truth_is_one_error_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    sc = tmp_path / "sc"
+    shutil.copytree(EXAMPLE, sc)
+    (sc / "truth.csv").unlink()
+    out = tmp_path / "ev"
+    assert cli.main(["eval", str(EXAMPLE), str(sc), "-q", "--out", str(out)]) == 2
+    assert (
+        capsys.readouterr().err
+        == f"error: {sc}: no truth.csv: eval scores a scenario against its truth\n"
+    )
+    assert not out.exists()  # refused before evaluating the other scenario
+
+
+@pytest.mark.parametrize("command", ["replay", "plot", "eval"])
+def test_the_boxes_backend_without_detections_is_one_error_line(
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = {
+        "replay": ["replay", str(EXAMPLE), "--results", str(tmp_path / "r.csv"), "-q"],
+        "plot": ["plot", str(EXAMPLE), "--out", str(tmp_path / "plots")],
+        "eval": ["eval", str(EXAMPLE), "-q", "--out", str(tmp_path / "ev")],
+    }[command]
+    assert cli.main([*argv, "--set", "detection.backend=boxes"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {EXAMPLE}: no detections.csv")
+    assert err.count("\n") == 1
+    assert not any(tmp_path.iterdir())

@@ -182,6 +182,23 @@ def is_log(path: str) -> bool:
     return p.suffix == ".mcap" or (p.is_dir() and any(p.glob("tcm-*.mcap")))
 
 
+def require_inputs(scenario: Any, config: AppConfig, *, truth: bool = False) -> None:
+    """Refuse, before any work, a scenario directory that lacks a file the run will need:
+    ``truth.csv`` to score it (``truth``), ``detections.csv`` for the ``boxes`` detection
+    backend. Raises :class:`~tcm_companion.io.scenario.ScenarioError` (one ``error:``
+    line, exit 2) instead of a traceback halfway through."""
+    from ..io.scenario import ScenarioError
+
+    where = getattr(scenario, "root", None) or scenario.name
+    if truth and getattr(scenario, "truth", None) is None:
+        raise ScenarioError(f"{where}: no truth.csv: eval scores a scenario against its truth")
+    if config.pipeline.detection.backend == "boxes" and scenario.detections is None:
+        raise ScenarioError(
+            f'{where}: no detections.csv, which [detection] backend = "boxes" replays'
+            " (tcm-companion sim export NAME DIR --detections writes one)"
+        )
+
+
 class TolerantFrames:
     """A scenario whose unreadable frames are reported and replayed as ``None`` (the
     pipeline counts them as bad frames) instead of ending the replay."""

@@ -19,6 +19,7 @@ from .common import (
     config_from_args,
     positive_seconds,
     progress,
+    require_inputs,
     resolution,
     whole_number,
 )
@@ -32,10 +33,12 @@ DEFAULT_EVAL_OUT = "out/eval"
 DEFAULT_DEMO_OUT = "out/demo"
 
 
-def _scenarios(args: argparse.Namespace) -> list[Any]:
+def _scenarios(args: argparse.Namespace, config: AppConfig) -> list[Any]:
     from ..io.scenario import load_scenario
 
     out: list[Any] = [load_scenario(p) for p in args.scenarios]
+    for sc in out:  # all of them before evaluating any
+        require_inputs(sc, config, truth=True)
     if args.sim:
         from ..sim import make_scenario
 
@@ -187,7 +190,7 @@ def run_evaluation(
 
 def cmd_eval(args: argparse.Namespace) -> int:
     config = config_from_args(args)
-    scenarios = _scenarios(args)
+    scenarios = _scenarios(args, config)
     resolutions: list[tuple[int, int] | None] = (
         list(args.resolutions) if args.resolutions else [None]
     )

@@ -14,6 +14,7 @@ from .common import (
     add_config_arguments,
     config_from_args,
     is_log,
+    require_inputs,
     whole_number,
 )
 
@@ -65,6 +66,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         # as replay does: the reader's warnings (a .tlog cut short, junk appended) first,
         # and an unreadable frame is a gap in the plots, reported, not the end of them
         scenario = TolerantFrames(load_scenario(args.source))
+        require_inputs(scenario, config)
         for w in scenario.warnings:
             print(f"warning: {w}", file=sys.stderr)
         paths = plot_scenario(scenario, args.out, config)

@@ -16,6 +16,7 @@ from .common import (
     config_from_args,
     is_log,
     progress,
+    require_inputs,
     whole_number,
 )
 
@@ -161,6 +162,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return cmd_replay_log(args)
     config = with_method(config_from_args(args), args.method, bsm=args.method == "bsm")
     scenario = TolerantFrames(load_scenario(args.scenario))
+    require_inputs(scenario, config)
     for w in scenario.warnings:
         print(f"warning: {w}", file=sys.stderr)
     states: dict[str, int] = {}

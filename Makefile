@@ -44,7 +44,8 @@ lock:
 run: $(STAMP)
 	$(BIN)/tcm-companion sitl --duration 20
 
-## The paper's evaluation: simulate TS/T45/T90 and print the tables.
+## The paper's evaluation: simulate TS/T45/T90 and print the tables (about 3 minutes of
+## one core; up to 9 on a busy machine).
 demo: $(STAMP)
 	$(BIN)/tcm-companion demo
 

@@ -292,8 +292,8 @@ def add_parsers(sub: Any) -> None:
         sub,
         "demo",
         "Simulate the paper's three flights (TS, T45, T90), evaluate TCM, ECM, BSM and the"
-        " fused decision on them and print the tables, with plots in --out (about 9 minutes"
-        " on two cores).",
+        " fused decision on them at 360x220 and print the tables, with plots in --out (about"
+        " 3 minutes of one core, up to 9 on a busy machine).",
     )
     add_config_arguments(p)
     add_quiet_argument(p)

@@ -21,7 +21,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .core.camera import _KEYS, CameraModel, CameraModelError, Equirectangular, camera_from_dict
+from .core.camera import (
+    _KEYS,
+    LENS_RANGES,
+    CameraModel,
+    CameraModelError,
+    Equirectangular,
+    camera_from_dict,
+    lens_range_text,
+)
 from .core.pipeline import PipelineConfig
 from .flightlog.writer import LoggingConfig
 from .io.cameras.settings import CameraSettings
@@ -314,25 +322,9 @@ def _camera_lens(table: str) -> dict[str, RangeSpec]:
     ``[camera.back]``."""
     return _ranges(
         table,
-        {
-            # 16 px: the detector's coarse cells (8 px) and the flow's 9 px windows need a
-            # few of each across; 16384: larger than any camera this runs, and below
-            # OpenCV's limit for the remap that warps and stitches frames (32767 px).
-            "width": "[16, 16384] px",
-            "height": "[16, 16384] px",
-            # At least a pixel: a 1-px focal length already sees ±89.8° across a
-            # 640-px pinhole image; 1e5 px is a 0.4° field of view on 640 px.
-            "fx": "[1, 100000] px",
-            "fy": "[1, 100000] px",
-            # Principal point within the image (scenario convention: width / 2 is the centre).
-            "cx": "[0, width] px",
-            "cy": "[0, height] px",
-            # Calibrated lenses give |k| of order 1 (a wide lens's k3 reaches tens);
-            # beyond 100 is a typo, or another model's coefficients.
-            "dist": "[-100, 100]",
-            # Roll, pitch, yaw: any rotation; beyond a whole turn is a typo.
-            "mount_rpy_deg": "[-360, 360] deg",
-        },
+        # The ranges and why: core/camera.py LENS_RANGES (scenario.toml is checked
+        # against the same).
+        {key: lens_range_text(key) for key in LENS_RANGES},
     )
 
 

@@ -199,18 +199,29 @@ def test_camera_from_dict_errors_name_the_key() -> None:
         camera_from_dict(
             {
                 "model": "fisheye",
-                "width": 10,
-                "height": 10,
-                "fx": 1,
-                "fy": 1,
-                "cx": 5,
-                "cy": 5,
+                "width": 64,
+                "height": 64,
+                "fx": 30,
+                "fy": 30,
+                "cx": 32,
+                "cy": 32,
                 "dist": [0.1],
             }
         )
     with pytest.raises(CameraModelError, match=r"camera\.mount_rpy_deg"):
         camera_from_dict(
             {"model": "equirectangular", "width": 10, "height": 10, "mount_rpy_deg": [1, 2]}
+        )
+    # The ranges config.toml's camera is held to (issue 13): a too-small image, a lens
+    # coefficient that is a typo, a mount beyond a whole turn.
+    with pytest.raises(CameraModelError, match=r"camera\.width = 10 is out of range"):
+        camera_from_dict({"model": "equirectangular", "width": 10, "height": 64})
+    with pytest.raises(CameraModelError, match=r"camera\.dist = \[0\.1, 500\.0, 0\.0, 0\.0\]"):
+        pinhole = {"model": "pinhole", "width": 64, "height": 64, "fx": 30, "fy": 30}
+        camera_from_dict({**pinhole, "cx": 32, "cy": 32, "dist": [0.1, 500.0, 0.0, 0.0]})
+    with pytest.raises(CameraModelError, match=r"camera\.mount_rpy_deg = \[0\.0, 0\.0, 400\.0\]"):
+        camera_from_dict(
+            {"model": "equirectangular", "width": 64, "height": 32, "mount_rpy_deg": [0, 0, 400]}
         )
 
 

@@ -251,7 +251,7 @@ def test_the_lens_model_names_only_the_bad_focal_length(
     with pytest.raises(CameraModelError) as err:
         camera_from_dict({**PINHOLE, **change}, where="scenario.toml: camera")
     msg = str(err.value)
-    assert msg.startswith(f"scenario.toml: camera.{key} must be positive")
+    assert msg.startswith(f"scenario.toml: camera.{key} = {change[key]} is out of range")
     assert other not in msg
 
 

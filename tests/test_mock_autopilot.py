@@ -969,3 +969,19 @@ def test_cli_arguments_make_a_config() -> None:
     assert cfg.ekf_origin_delay_us == 500_000
     with pytest.raises(ValueError):
         MockAutopilotConfig(scenario="NOPE")
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("system_id", 0, "system_id must be in 1..255, got 0"),
+        ("component_id", 300, "component_id must be in 1..255, got 300"),
+        ("noise", -1.0, "noise must be >= 0, got -1.0"),
+        ("brake_decel_mps2", 0.0, "brake_decel_mps2 must be > 0, got 0.0"),
+    ],
+)
+def test_a_bad_mock_setting_names_only_its_key(key: str, value: Any, message: str) -> None:
+    """The messages named two keys at once ("noise must be >= 0 and brake_decel_mps2 > 0")."""
+    with pytest.raises(ValueError) as err:
+        MockAutopilotConfig(**{key: value})
+    assert str(err.value) == message

@@ -71,6 +71,30 @@ def test_camera_key_errors(broken: Path) -> None:
         load_scenario(broken)
 
 
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "fx = 320.0\n",
+            "fx = 1e-9\n",
+            r"camera\.fx = 1e-09 is out of range: must be in \[1, 100000\] px",
+        ),
+        (
+            "cx = 320.0\n",
+            "cx = -5000.0\n",
+            r"camera\.cx = -5000\.0 is out of range: .*\[0, width\] px \(width = 640\)",
+        ),
+    ],
+)
+def test_camera_values_out_of_range(broken: Path, old: str, new: str, message: str) -> None:
+    """The scenario's camera is held to the ranges config.toml's is (issue 13: fx = 1e-9
+    and cx = -5000 replayed silently)."""
+    edit(broken / "scenario.toml", old, new)
+    with pytest.raises(ScenarioError, match=r"scenario\.toml: " + message) as err:
+        load_scenario(broken)
+    assert "fy" not in str(err.value) and "cy" not in str(err.value)  # only the bad key
+
+
 def test_toml_syntax_error_names_line(broken: Path) -> None:
     edit(broken / "scenario.toml", 'model = "pinhole"', "model = pinhole")
     with pytest.raises(ScenarioError, match=r"scenario\.toml: .*line 7"):

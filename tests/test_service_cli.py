@@ -162,6 +162,20 @@ def test_a_non_positive_duration_is_refused(
     assert args.duration == 0.5
 
 
+@pytest.mark.parametrize("value", ["150", "-5", "nan", "most"])
+def test_min_accuracy_is_a_percentage(value: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """-5 silently meant "not judged" and 150 failed every run."""
+    with pytest.raises(SystemExit) as exc:
+        cli.build_parser().parse_args(["sitl", "--min-accuracy", value])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument --min-accuracy: must be a percentage in [0, 100], got '{value}'" in err
+    for ok in ("0", "97.5", "100"):
+        assert cli.build_parser().parse_args(["sitl", "--min-accuracy", ok]).min_accuracy == float(
+            ok
+        )
+
+
 # -- signals ----------------------------------------------------------------------------------
 def test_how_a_run_ended_reads() -> None:
     assert run_length_text(20.0, 20.0) == "20.0 s"

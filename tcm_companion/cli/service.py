@@ -258,6 +258,17 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
+def _percent(text: str) -> float:
+    """``argparse`` type of ``--min-accuracy``: a percentage in [0, 100]."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value <= 100.0:
+        raise argparse.ArgumentTypeError(f"must be a percentage in [0, 100], got {text!r}")
+    return value
+
+
 def _status_every(text: str) -> int:
     """``argparse`` type of ``--status-every``: whole seconds >= 0 (0: no status line)."""
     try:
@@ -667,7 +678,7 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--min-accuracy",
-        type=float,
+        type=_percent,
         default=None,
         metavar="PCT",
         help="mock: fail (exit 1) when the accuracy of the decided object-frames after the"

@@ -407,6 +407,55 @@ _KEYS: dict[str, tuple[str, ...]] = {
 }
 
 
+#: The valid range of each lens key of a camera table, as (low, high) in the key's unit;
+#: ``"width"``/``"height"`` as a bound means that key's value. One home: ``config.py``
+#: states and checks the same ranges for ``[camera]``, and :func:`camera_from_dict`
+#: checks them for a scenario's ``scenario.toml``.
+LENS_RANGES: dict[str, tuple[float, float | str, str]] = {
+    # 16 px: the detector's coarse cells (8 px) and the flow's 9 px windows need a few of
+    # each across; 16384: larger than any camera this runs, and below OpenCV's limit for
+    # the remap that warps and stitches frames (32767 px).
+    "width": (16, 16384, "px"),
+    "height": (16, 16384, "px"),
+    # At least a pixel: a 1-px focal length already sees ±89.8° across a 640-px pinhole
+    # image; 1e5 px is a 0.4° field of view on 640 px.
+    "fx": (1, 100000, "px"),
+    "fy": (1, 100000, "px"),
+    # Principal point within the image (scenario convention: width / 2 is the centre).
+    "cx": (0, "width", "px"),
+    "cy": (0, "height", "px"),
+    # Calibrated lenses give |k| of order 1 (a wide lens's k3 reaches tens); beyond 100 is
+    # a typo, or another model's coefficients.
+    "dist": (-100, 100, ""),
+    # Roll, pitch, yaw: any rotation; beyond a whole turn is a typo.
+    "mount_rpy_deg": (-360, 360, "deg"),
+}
+
+
+def lens_range_text(key: str) -> str:
+    """``LENS_RANGES[key]`` as ``config.py`` writes a range: ``"[1, 100000] px"``."""
+    lo, hi, unit = LENS_RANGES[key]
+    return f"[{lo:g}, {hi if isinstance(hi, str) else format(hi, 'g')}]" + (
+        f" {unit}" if unit else ""
+    )
+
+
+def _check_lens_ranges(kwargs: Mapping[str, Any], where: str) -> None:
+    for key, (lo, hi, _unit) in LENS_RANGES.items():
+        if key not in kwargs:
+            continue
+        high = float(kwargs[hi]) if isinstance(hi, str) else float(hi)
+        value = kwargs[key]
+        for v in value if isinstance(value, tuple) else (value,):
+            if not lo <= float(v) <= high:
+                bound = f" ({hi} = {high:g})" if isinstance(hi, str) else ""
+                shown = list(value) if isinstance(value, tuple) else value
+                raise CameraModelError(
+                    f"{where}.{key} = {shown} is out of range: must be in"
+                    f" {lens_range_text(key)}{bound}"
+                )
+
+
 def camera_from_dict(table: Mapping[str, Any], where: str = "camera") -> CameraModel:
     """Build a model from a ``[camera]`` table; errors name the offending key.
 
@@ -443,6 +492,7 @@ def camera_from_dict(table: Mapping[str, Any], where: str = "camera") -> CameraM
             if not _is_number(value):
                 raise CameraModelError(f"{where}.{key} must be a number, got {value!r}")
             kwargs[key] = float(value)
+    _check_lens_ranges(kwargs, where)
     try:
         return _MODELS[model](**kwargs)
     except CameraModelError as exc:

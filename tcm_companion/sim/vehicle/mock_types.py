@@ -41,14 +41,17 @@ class MockAutopilotConfig:
     max_tx_bytes: int = 256 * 1024  # outgoing buffer; further messages are dropped
 
     def __post_init__(self) -> None:
-        if not 1 <= self.system_id <= 255 or not 1 <= self.component_id <= 255:
-            raise ValueError("system_id and component_id must be in 1..255")
+        for name in ("system_id", "component_id"):
+            if not 1 <= getattr(self, name) <= 255:
+                raise ValueError(f"{name} must be in 1..255, got {getattr(self, name)!r}")
         if self.scenario.upper() not in SCENARIO_NAMES:
             raise ValueError(
                 f"unknown scenario {self.scenario!r}; choose one of {', '.join(SCENARIO_NAMES)}"
             )
-        if not (self.noise >= 0 and self.brake_decel_mps2 > 0):
-            raise ValueError("noise must be >= 0 and brake_decel_mps2 > 0")
+        if not self.noise >= 0:
+            raise ValueError(f"noise must be >= 0, got {self.noise!r}")
+        if not self.brake_decel_mps2 > 0:
+            raise ValueError(f"brake_decel_mps2 must be > 0, got {self.brake_decel_mps2!r}")
         for name in (
             "boot_offset_us",
             "heartbeat_delay_us",

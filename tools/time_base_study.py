@@ -60,7 +60,6 @@ RATES: tuple[tuple[str, float | None], ...] = (
     ("25 fps, 20% dropped", None),
 )
 WARMUP_S = 1.0
-MATCH_GATE_RAD = math.radians(5.0)
 
 
 def kept_frames(n: int, rate: float | None, seed: int) -> list[int]:
@@ -78,18 +77,17 @@ def kept_frames(n: int, rate: float | None, seed: int) -> list[int]:
 # -- the worker: runs in a subprocess whose tcm_companion is the old or the new one ------
 def worker(name: str, seed: int, duration_s: float | None) -> dict[str, Any]:
     from tcm_companion.config import AppConfig
-    from tcm_companion.core.frames import angle_between, normalize
     from tcm_companion.core.pipeline import Pipeline
-    from tcm_companion.eval.evaluate import truth_ttc_s
+    from tcm_companion.io.truth import match_truth
     from tcm_companion.sim import make_scenario
 
     sc = make_scenario(name, duration_s=duration_s, seed=seed)
     frames = [img for _, _, img in sc.iter_frames()]
     telemetry = sorted(sc.telemetry, key=lambda s: s.recv_us)
     truth = sc.truth
-    true_ttc = truth_ttc_s(truth, sc.frame_times_us)
+    true_ttc = truth.ttc_s(sc.frame_times_us)
     cfg = AppConfig()
-    wait = cfg.replay.telemetry_wait_us
+    wait = cfg.daemon.attitude_wait_max_us  # replay's wait is the daemon's
     t0 = int(sc.frame_times_us[0])
     out: dict[str, Any] = {}
     for label, rate in RATES:
@@ -109,16 +107,12 @@ def worker(name: str, seed: int, duration_s: float | None) -> dict[str, Any]:
             used: set[int] = set()
             for r in truth.rows_for_frame(i):
                 rel = truth.obj_ned_m[r] - truth.veh_ned_m[r]
-                alpha = math.asin(min(1.0, truth.obj_radius_m[r] / float(np.linalg.norm(rel))))
-                b_true = normalize(rel)
-                best, best_ang = -1, math.inf
-                for k, o in enumerate(objs):
-                    ang = float(angle_between(o.bearing_ned, b_true))
-                    if k not in used and ang < best_ang:
-                        best, best_ang = k, ang
-                matched = best >= 0 and best_ang <= MATCH_GATE_RAD + 2.0 * alpha
+                m = match_truth(
+                    rel, float(truth.obj_radius_m[r]), [o.bearing_ned for o in objs], used
+                )
+                best = m.index
+                matched = best >= 0
                 if matched:
-                    used.add(best)
                     tracks.add(objs[best].track_id)
                 state = objs[best].state if matched else "unknown"
                 if (t_us - t0) * 1e-6 >= WARMUP_S - 0.004:

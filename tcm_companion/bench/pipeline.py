@@ -10,16 +10,37 @@ from __future__ import annotations
 
 import platform
 import resource
+import time
 from collections.abc import Iterator, Sequence
 
 import cv2
 import numpy as np
 
 from ..config import AppConfig
-from ..core.pipeline import Pipeline
+from ..core.camera import CameraModel
+from ..core.pipeline import FrameResult, Pipeline, PipelineConfig
 from ..replay.scenario import with_method
 
 STAGES = ("telemetry", "detect", "flow", "track", "classify", "bsm", "total")
+
+
+class _CpuTimedPipeline(Pipeline):
+    """A pipeline that also records each step's CPU time (this thread's clock, ms).
+
+    The stage times are wall clock; on a shared machine a frame's wall time includes
+    the time the process waited for a core, so the CPU time of the whole step is
+    reported beside them (the ``cpu`` column): what a frame costs, whatever the load.
+    """
+
+    def __init__(self, camera: CameraModel, config: PipelineConfig) -> None:
+        super().__init__(camera, config)
+        self.cpu_ms: list[float] = []
+
+    def step(self, frame: np.ndarray, frame_time_us: int) -> FrameResult:
+        start = time.thread_time()
+        result = super().step(frame, frame_time_us)
+        self.cpu_ms.append((time.thread_time() - start) * 1e3)
+        return result
 
 
 def _frames(
@@ -40,10 +61,9 @@ def _time_method(
     frames: list[tuple[int, int, np.ndarray]],
     gap_s: float = 0.0,
 ) -> dict[str, np.ndarray]:
-    """Per-stage ms of each frame after a warm-up; ``gap_s``: sleep before each frame
+    """Per-stage ms of each frame after a warm-up (wall clock; ``cpu``: the whole step on
+    this thread's CPU clock); ``gap_s``: sleep before each frame
     (``tools/pipeline_pacing_study.py``: the daemon's 40 ms between frames vs back to back)."""
-    import time
-
     from ..replay.scenario import run_replay
 
     class _Frozen:
@@ -61,14 +81,16 @@ def _time_method(
                     time.sleep(gap_s)
                 yield f
 
-    pipe = Pipeline(sim.camera, config.pipeline)  # type: ignore[attr-defined]
+    pipe = _CpuTimedPipeline(sim.camera, config.pipeline)  # type: ignore[attr-defined]
     rows: dict[str, list[float]] = {s: [] for s in STAGES}
     for k, result in enumerate(run_replay(_Frozen(), config, pipe)):
         if k < 30:  # warm-up: caches, first tracks, first full interval
             continue
         for s in STAGES:
             rows[s].append(result.timings_ms.get(s, 0.0))
-    return {s: np.asarray(v) for s, v in rows.items()}
+    out = {s: np.asarray(v) for s, v in rows.items()}
+    out["cpu"] = np.asarray(pipe.cpu_ms[30:])
+    return out
 
 
 def run_bench(
@@ -81,7 +103,10 @@ def run_bench(
         f"OpenCV {cv2.__version__}",
         f"egomotion source: {config.pipeline.egomotion_source}; times in ms per frame, median / p99",
         "",
-        "resolution  method  " + "  ".join(f"{s:>13}" for s in STAGES),
+        "cpu: the whole step on this thread's CPU clock (what a frame costs whatever the "
+        "machine's load; the stages are wall clock)",
+        "",
+        "resolution  method  " + "  ".join(f"{s:>13}" for s in (*STAGES, "cpu")),
     ]
     for res in resolutions:
         sim, frames = _frames(res, n_frames)
@@ -89,14 +114,19 @@ def run_bench(
         # growth, OpenCV and numpy internals) that would otherwise land on one method.
         _time_method(config, sim, frames[:60])
         medians = {}
+        cpu = {}
         for method in ("tcm", "ecm", "fused", "bsm"):
             cfg = with_method(config, method)
             t = _time_method(cfg, sim, frames)
             medians[method] = float(np.median(t["total"]))
-            cells = [f"{np.median(t[s]):6.2f}/{np.percentile(t[s], 99):6.2f}" for s in STAGES]
+            cpu[method] = float(np.median(t["cpu"]))
+            cells = [
+                f"{np.median(t[s]):6.2f}/{np.percentile(t[s], 99):6.2f}" for s in (*STAGES, "cpu")
+            ]
             lines.append(f"{res[0]:>4}x{res[1]:<5}  {method:<6}  " + "  ".join(cells))
         lines.append(
             f"{res[0]:>4}x{res[1]:<5}  BSM/TCM median ratio: {medians['bsm'] / medians['tcm']:.2f}"
+            f" (cpu: {cpu['bsm'] / cpu['tcm']:.2f})"
         )
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     lines += [

@@ -218,17 +218,23 @@ class Tracker:
             size = np.abs(np.log(alpha_o[None, :] / alpha_t[:, None]))
             ok = (ang <= gate) & (size <= cfg.max_log_size_change)
             cost = np.where(ok, ang / gate + 0.5 * size, 1e6)
-            rows, cols = linear_sum_assignment(cost)
-            for r, c in zip(rows, cols):
+            if n_t == 1 and n_o == 1:
+                # One pair (the common case): the assignment is that pair (the cost is
+                # finite by construction), without the solver's call overhead.
+                pairs = [(0, 0)]
+            else:
+                rows, cols = linear_sum_assignment(cost)
+                pairs = list(zip(rows.tolist(), cols.tolist()))
+            for r, c in pairs:
                 if ok[r, c]:
                     tr = self.tracks[r]
                     tr.add(observations[c])
                     tr.misses = 0
                     tr.hits += 1
-                    assigned_obs.add(int(c))
+                    assigned_obs.add(c)
                 else:
                     self.tracks[r].misses += 1
-            for r in set(range(n_t)) - {int(x) for x in rows}:
+            for r in set(range(n_t)) - {r for r, _ in pairs}:
                 self.tracks[r].misses += 1
         else:
             for tr in self.tracks:

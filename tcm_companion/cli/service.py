@@ -247,26 +247,25 @@ def _status_printer(every: int, enabled: bool = True) -> contextlib.AbstractCont
     return _StatusPrinter(every=every).logs_above()
 
 
-def _positive_seconds(text: str) -> float:
-    """``argparse`` type of ``--duration``: a finite number of seconds > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
-    return value
+def _float_in(ok: Callable[[float], bool], must_be: str) -> Callable[[str], float]:
+    """An ``argparse`` type: a number for which ``ok`` holds, else "must be ``must_be``"."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"must be {must_be}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _percent(text: str) -> float:
-    """``argparse`` type of ``--min-accuracy``: a percentage in [0, 100]."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not 0.0 <= value <= 100.0:
-        raise argparse.ArgumentTypeError(f"must be a percentage in [0, 100], got {text!r}")
-    return value
+#: ``--duration``: a finite number of seconds > 0.
+_positive_seconds = _float_in(lambda v: math.isfinite(v) and v > 0, "a positive number of seconds")
+#: ``--min-accuracy``: a percentage.
+_percent = _float_in(lambda v: 0.0 <= v <= 100.0, "a percentage in [0, 100]")
 
 
 def _status_every(text: str) -> int:

@@ -105,9 +105,19 @@ class CameraModel(ABC):
         """The same lens at another resolution (intrinsics scale with the image)."""
         return _scale_model(self, width, height)
 
-    @abstractmethod
     def to_dict(self) -> dict[str, Any]:
         """The ``[camera]`` table of ``scenario.toml`` for this model."""
+        return {
+            "model": self.model_name,
+            "width": self.width,
+            "height": self.height,
+            "mount_rpy_deg": list(self.mount_rpy_deg),
+            **self._lens_dict(),
+        }
+
+    @abstractmethod
+    def _lens_dict(self) -> dict[str, Any]:
+        """The model's own keys of :meth:`to_dict`."""
 
 
 def _triangle_solid_angle(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
@@ -187,12 +197,8 @@ class Equirectangular(CameraModel):
             bad = outside_az | (el > el_max + 1e-12) | (el < el_min - 1e-12)
         return np.stack([np.where(bad, np.nan, u), np.where(bad, np.nan, v)], axis=-1)
 
-    def to_dict(self) -> dict[str, Any]:
+    def _lens_dict(self) -> dict[str, Any]:
         return {
-            "model": self.model_name,
-            "width": self.width,
-            "height": self.height,
-            "mount_rpy_deg": list(self.mount_rpy_deg),
             "azimuth_min_deg": self.azimuth_min_deg,
             "azimuth_max_deg": self.azimuth_max_deg,
             "elevation_max_deg": self.elevation_max_deg,
@@ -229,12 +235,8 @@ class _Intrinsic(CameraModel):
     def _from_normalised(self, x: FloatArray, y: FloatArray) -> FloatArray:
         return np.stack([self.fx * x + self.cx, self.fy * y + self.cy], axis=-1)
 
-    def to_dict(self) -> dict[str, Any]:
+    def _lens_dict(self) -> dict[str, Any]:
         return {
-            "model": self.model_name,
-            "width": self.width,
-            "height": self.height,
-            "mount_rpy_deg": list(self.mount_rpy_deg),
             "fx": self.fx,
             "fy": self.fy,
             "cx": self.cx,

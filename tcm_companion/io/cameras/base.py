@@ -177,3 +177,54 @@ class Waker:
     @property
     def interrupted(self) -> bool:
         return self._event.is_set()
+
+
+class PacedSource(FrameSource):
+    """A recording played as frames ``i = 0, 1, …`` at ``fps``: frame ``i``'s capture time
+    is ``t_open + i / fps`` on ``clock_us``, waited for when ``realtime`` (:class:`Pacer`;
+    otherwise nothing sleeps and the times are the same series). Finite unless ``loop``
+    (then live: reopened when it fails). ``sleep`` defaults to an interruptible wait woken
+    by :meth:`interrupt`. Subclasses call :meth:`_start` at the end of ``open`` and return
+    :meth:`_paced` of each image from ``read``."""
+
+    def __init__(
+        self,
+        name: str,
+        width: int,
+        height: int,
+        *,
+        realtime: bool,
+        loop: bool,
+        fps: float,
+        clock_us: Callable[[], int],
+        sleep: Callable[[float], object] | None,
+    ) -> None:
+        if not fps > 0:
+            raise ValueError(f"fps must be positive, got {fps!r}")
+        super().__init__(name, width, height)
+        self.realtime = realtime
+        self.loop = loop
+        self.live = loop
+        self.fps = float(fps)
+        self.clock_us = clock_us
+        self._waker = Waker()
+        self._sleep = sleep if sleep is not None else self._waker.sleep
+        self.pacer = Pacer(clock_us, self._sleep, realtime, max_lag_us=round(1e6 / self.fps))
+        self._index = 0  # frames returned since open
+
+    def _start(self, fps: float | None = None) -> None:
+        """Frame 0 is due now (``fps``: the rate the opened recording says it has)."""
+        if fps is not None:
+            self.fps = float(fps)
+            self.pacer.max_lag_us = round(1e6 / self.fps)
+        self._index = 0
+        self.pacer.start()
+
+    def _paced(self, image: np.ndarray | None) -> tuple[np.ndarray | None, int]:
+        """``image`` as the next frame, with its capture time (waited for if realtime)."""
+        t_us = self.pacer.wait(round(self._index * 1e6 / self.fps))
+        self._index += 1
+        return image, t_us
+
+    def interrupt(self) -> None:
+        self._waker.interrupt()

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .base import CameraError, CameraGone, EndOfStream, FrameSource, Pacer, Waker, monotonic_us
+from .base import CameraError, CameraGone, EndOfStream, PacedSource, monotonic_us
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +34,7 @@ def list_images(directory: Path) -> list[Path]:
     return sorted(files, key=_natural_key)
 
 
-class FramesDirSource(FrameSource):
+class FramesDirSource(PacedSource):
     """Images of a directory as frames ``i = 0, 1, …`` at ``fps`` (frames per second).
 
     An image that cannot be decoded is returned as None (the reader counts it as
@@ -55,19 +55,18 @@ class FramesDirSource(FrameSource):
         *,
         name: str | None = None,
     ) -> None:
-        if not fps > 0:
-            raise ValueError(f"fps must be positive, got {fps!r}")
         self.path = Path(path)
-        super().__init__(name or self.path.name, width, height)
-        self.realtime = realtime
-        self.fps = float(fps)
-        self.loop = loop
-        self.live = loop
-        self._waker = Waker()
-        sleep = sleep if sleep is not None else self._waker.sleep
-        self.pacer = Pacer(clock_us, sleep, realtime, max_lag_us=round(1e6 / self.fps))
+        super().__init__(
+            name or self.path.name,
+            width,
+            height,
+            realtime=realtime,
+            loop=loop,
+            fps=fps,
+            clock_us=clock_us,
+            sleep=sleep,
+        )
         self.files: list[Path] = []
-        self._index = 0  # frames returned since open
         self._open = False
 
     def open(self) -> None:
@@ -79,8 +78,8 @@ class FramesDirSource(FrameSource):
             raise CameraError(
                 f"{self.path}: no images ({', '.join('*' + s for s in IMAGE_SUFFIXES)})"
             )
-        self.files, self._index, self._open = files, 0, True
-        self.pacer.start()
+        self.files, self._open = files, True
+        self._start()
 
     def read(self) -> tuple[np.ndarray | None, int | None]:
         if not self._open:
@@ -92,12 +91,7 @@ class FramesDirSource(FrameSource):
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
             log.warning("%s: cannot be read as an image", path)
-        t_us = self.pacer.wait(round(self._index * 1e6 / self.fps))
-        self._index += 1
-        return image, t_us
-
-    def interrupt(self) -> None:
-        self._waker.interrupt()
+        return self._paced(image)
 
     def close(self) -> None:
         self._open = False

@@ -32,7 +32,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from .base import CameraError, CameraGone, EndOfStream, FrameSource, Pacer, Waker, monotonic_us
+from .base import CameraError, CameraGone, EndOfStream, FrameSource, PacedSource, monotonic_us
 
 log = logging.getLogger(__name__)
 
@@ -223,7 +223,7 @@ class GStreamerSource(_CaptureSource):
         self._cap = cap
 
 
-class VideoFileSource(FrameSource):
+class VideoFileSource(PacedSource):
     """Frames of a video file, paced at the file's frame rate or as fast as possible.
 
     ``realtime``: frame ``i`` is returned at ``t_open + i / fps`` on the monotonic clock
@@ -247,18 +247,18 @@ class VideoFileSource(FrameSource):
         name: str | None = None,
     ) -> None:
         self.path = Path(path)
-        super().__init__(name or self.path.name, width, height)
-        self.realtime = realtime
-        self.loop = loop
-        self.live = loop
-        self.clock_us = clock_us
-        self._waker = Waker()
-        self._sleep = sleep if sleep is not None else self._waker.sleep
-        self.fps = DEFAULT_FILE_FPS
-        self.pacer = Pacer(clock_us, self._sleep, realtime, max_lag_us=40_000)
+        super().__init__(
+            name or self.path.name,
+            width,
+            height,
+            realtime=realtime,
+            loop=loop,
+            fps=DEFAULT_FILE_FPS,  # until open() reads the file's
+            clock_us=clock_us,
+            sleep=sleep,
+        )
         self._cap: Any = None
         self._pending: np.ndarray | None = None  # frame 0, decoded by open()
-        self._index = 0  # frames returned since open
 
     def open(self) -> None:
         self.close()
@@ -273,10 +273,8 @@ class VideoFileSource(FrameSource):
         if not ok or first is None:
             cap.release()
             raise CameraError(f"{self.path}: no frame can be decoded")
-        self.fps = _fps_or_default(float(cap.get(cv2.CAP_PROP_FPS)))
-        self.pacer.max_lag_us = round(1e6 / self.fps)
-        self._cap, self._pending, self._index = cap, first, 0
-        self.pacer.start()
+        self._cap, self._pending = cap, first
+        self._start(_fps_or_default(float(cap.get(cv2.CAP_PROP_FPS))))
 
     def read(self) -> tuple[np.ndarray | None, int | None]:
         if self._cap is None:
@@ -292,12 +290,7 @@ class VideoFileSource(FrameSource):
                 ok, image = self._cap.read()
                 if not ok:
                     raise CameraGone(f"{self.path}: cannot rewind")
-        t_us = self.pacer.wait(round(self._index * 1e6 / self.fps))
-        self._index += 1
-        return image, t_us
-
-    def interrupt(self) -> None:
-        self._waker.interrupt()
+        return self._paced(image)
 
     def close(self) -> None:
         cap, self._cap, self._pending = self._cap, None, None

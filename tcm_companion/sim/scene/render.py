@@ -43,6 +43,7 @@ Appearance:
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -850,6 +851,23 @@ class Renderer:
         albedo *= np.float32(1.0 / 128.0)
         return albedo, lit
 
+    def _ground_under(
+        self, fr: _Frame, feet: list[tuple[FloatArray, float]]
+    ) -> Iterator[tuple[int, np.ndarray]]:
+        """``(k, pixels)`` for each shading object ``k`` whose shadow footprint ``feet[k]``
+        (its ground point and reach, m: :func:`_footprint`) falls on tiles with ground
+        pixels: those pixels (flat indices, ascending). Objects shading no ground pixel are
+        skipped."""
+        hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
+        for k in range(len(feet)):
+            tiles = np.nonzero(hit[:, k])[0]
+            if tiles.size == 0:
+                continue
+            idx = self.layout.pixels_of_tiles(tiles)
+            idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
+            if idx.size:
+                yield k, idx
+
     def _ball_shadows(
         self, fr: _Frame, balls: list[tuple[FloatArray, Ball]], hits: _GroundHits
     ) -> np.ndarray | None:
@@ -860,15 +878,8 @@ class Renderer:
         g0, _, n_all, e_all, foot_all = hits
         sunlit: np.ndarray | None = None
         feet = [_footprint(c, b.radius_m, self._L) for c, b in balls]
-        hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
-        for k, (centre, ball) in enumerate(balls):
-            tiles = np.nonzero(hit[:, k])[0]
-            if tiles.size == 0:
-                continue
-            idx = self.layout.pixels_of_tiles(tiles)
-            idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
-            if idx.size == 0:
-                continue
+        for k, idx in self._ground_under(fr, feet):
+            centre, ball = balls[k]
             loc = idx - g0
             n, e, foot = _take(n_all, loc), _take(e_all, loc), _take(foot_all, loc)
             cover = _sphere_shadow(
@@ -1334,15 +1345,8 @@ class Renderer:
         if L[2] > -1e-3:
             return sunlit
         feet = [_footprint(c, tg.bounding_radius_m, L) for c, tg in targets]
-        hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
-        for k, (centre, target) in enumerate(targets):
-            tiles = np.nonzero(hit[:, k])[0]
-            if tiles.size == 0:
-                continue
-            idx = self.layout.pixels_of_tiles(tiles)
-            idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
-            if idx.size == 0:
-                continue
+        for k, idx in self._ground_under(fr, feet):
+            centre, target = targets[k]
             pts = _outline_points_ned(target, centre, target.R_ned_from_obj(t_s))
             ground_pts = pts[:, :2] - (pts[:, 2] / L[2])[:, None] * L[None, :2]
             hull = _convex_hull_2d(ground_pts)

@@ -82,7 +82,7 @@ import tempfile
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -1186,46 +1186,17 @@ class ArduPilotSitl:
             mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, _msg_id(msg_type), interval_us
         )
 
-    def set_param(
-        self, name: str, value: float, timeout_s: float = 5.0, target_component: int = 1
-    ) -> float:
-        """PARAM_SET to ``target_component`` of system 1 (the autopilot, or e.g. the companion
-        at 191 through the autopilot's routing), re-sent every second until a PARAM_VALUE
-        with the new value comes back; returns it. :class:`SitlError` if it keeps another
-        value."""
-        gcs = self.gcs
-        deadline = time.monotonic() + timeout_s
-        last: Received | None = None
-        while time.monotonic() < deadline:
-            since = time.monotonic()
-            gcs.send(
-                gcs.mav.param_set_encode(
-                    1, target_component, name.encode(), float(value), mavlink2.MAV_PARAM_TYPE_REAL32
-                )
-            )
-            try:
-                last = gcs.wait_message(
-                    "PARAM_VALUE",
-                    min(1.0, max(0.05, deadline - time.monotonic())),
-                    lambda m: m.param_id == name,
-                    since_s=since,
-                    src=(1, target_component),
-                )
-            except SitlTimeout:
-                continue
-            if math.isclose(last.msg.param_value, value, rel_tol=1e-6, abs_tol=1e-6):
-                return float(last.msg.param_value)
-        if last is not None:
-            raise SitlError(f"{name} set to {value} but reads {last.msg.param_value}")
-        raise SitlTimeout(f"no PARAM_VALUE for {name} (unknown parameter?)")
-
-    def get_param(self, name: str, target_component: int = 1, timeout_s: float = 3.0) -> float:
-        """PARAM_REQUEST_READ by name; the value of the PARAM_VALUE reply."""
+    def _param_values(
+        self, name: str, target_component: int, timeout_s: float, request: Callable[[], Any]
+    ) -> Iterator[Received]:
+        """Sends ``request()`` (a PARAM_SET or PARAM_REQUEST_READ message) and yields the
+        PARAM_VALUE of ``name`` from ``target_component`` that answers it; re-sends after
+        a second without one, until ``timeout_s``. The caller stops when it is satisfied."""
         gcs = self.gcs
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             since = time.monotonic()
-            gcs.send(gcs.mav.param_request_read_encode(1, target_component, name.encode(), -1))
+            gcs.send(request())
             try:
                 rec = gcs.wait_message(
                     "PARAM_VALUE",
@@ -1236,6 +1207,40 @@ class ArduPilotSitl:
                 )
             except SitlTimeout:
                 continue
+            yield rec
+
+    def set_param(
+        self, name: str, value: float, timeout_s: float = 5.0, target_component: int = 1
+    ) -> float:
+        """PARAM_SET to ``target_component`` of system 1 (the autopilot, or e.g. the companion
+        at 191 through the autopilot's routing), re-sent every second until a PARAM_VALUE
+        with the new value comes back; returns it. :class:`SitlError` if it keeps another
+        value."""
+        mav = self.gcs.mav
+        last: Received | None = None
+        for last in self._param_values(
+            name,
+            target_component,
+            timeout_s,
+            lambda: mav.param_set_encode(
+                1, target_component, name.encode(), float(value), mavlink2.MAV_PARAM_TYPE_REAL32
+            ),
+        ):
+            if math.isclose(last.msg.param_value, value, rel_tol=1e-6, abs_tol=1e-6):
+                return float(last.msg.param_value)
+        if last is not None:
+            raise SitlError(f"{name} set to {value} but reads {last.msg.param_value}")
+        raise SitlTimeout(f"no PARAM_VALUE for {name} (unknown parameter?)")
+
+    def get_param(self, name: str, target_component: int = 1, timeout_s: float = 3.0) -> float:
+        """PARAM_REQUEST_READ by name; the value of the PARAM_VALUE reply."""
+        mav = self.gcs.mav
+        for rec in self._param_values(
+            name,
+            target_component,
+            timeout_s,
+            lambda: mav.param_request_read_encode(1, target_component, name.encode(), -1),
+        ):
             return float(rec.msg.param_value)
         raise SitlTimeout(f"no PARAM_VALUE for {name} from component {target_component}")
 

@@ -42,7 +42,7 @@ def _imports() -> tuple[Any, Any, Any, Any, Any]:
     try:
         from tcm_companion.replay.scenario import run_replay, with_method
     except ImportError:  # the baseline (99b4b75): replay was one module
-        from tcm_companion.replay import run_replay, with_method  # type: ignore[no-redef]
+        from tcm_companion.replay import run_replay, with_method  # type: ignore[no-redef,attr-defined]
     from tcm_companion.sim import make_scenario
 
     return AppConfig, Pipeline, run_replay, with_method, make_scenario

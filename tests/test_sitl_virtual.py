@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -192,18 +194,52 @@ def test_run_sitl_takes_the_virtual_clock_and_a_mock_of_its_own(tmp_path: Path) 
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[Any]:
+    # The persisted state (params.json) goes under cwd, never the user's own.
+    env = {**os.environ, "XDG_STATE_HOME": str(cwd / "state")}
+    env.pop("STATE_DIRECTORY", None)
     return subprocess.run(
         [sys.executable, "-m", "tcm_companion", "sitl", "--clock", "virtual", *args],
         capture_output=True,
         text=True,
         timeout=300,
         cwd=cwd,
+        env=env,
     )
+
+
+#: The static TS ball judged with a threshold far below its disparity: all "moving".
+_EVERYTHING_MOVES = (
+    "--duration", "6", "--scenario", "TS", "--log-level", "WARNING",
+    "--set", "classifier.method=tcm", "--set", "classifier.tcm_threshold=0.001",
+)  # fmt: skip
 
 
 def test_the_cli_exits_non_zero_below_the_accuracy_floor(tmp_path: Path) -> None:
     ok = _cli("--duration", "3", "--log-level", "ERROR", cwd=tmp_path)
     assert ok.returncode == 0, ok.stdout + ok.stderr
     assert "virtual clock" in ok.stdout and "(floor 90%)" in ok.stdout
-    bad = _cli("--duration", "3", "--min-accuracy", "101", "--log-level", "ERROR", cwd=tmp_path)
-    assert bad.returncode == 1 and "below the floor of 101%" in bad.stdout
+    bad = _cli(*_EVERYTHING_MOVES, cwd=tmp_path)
+    assert bad.returncode == 1, bad.stdout + bad.stderr
+    assert "FAILED: accuracy 0.0% below the floor of 90%" in bad.stdout
+    unjudged = _cli(*_EVERYTHING_MOVES, "--min-accuracy", "0", cwd=tmp_path)
+    assert unjudged.returncode == 0 and "accuracy 0.0% of" in unjudged.stdout
+
+
+def test_the_configuration_is_followed_unless_a_parameter_was_set(tmp_path: Path) -> None:
+    """The parameter table started from its own defaults and overrode the configuration:
+    tcm_threshold in config.toml (or --set) had no effect on run/sitl, and every run
+    persisted every value, so later edits of the file were shadowed too, silently."""
+    state = ("--set", f"daemon.state_dir={tmp_path / 'state'}")
+    params = tmp_path / "state" / "params.json"
+    run = _cli(*_EVERYTHING_MOVES, *state, "--min-accuracy", "0", cwd=tmp_path)
+    assert "accuracy 0.0% of" in run.stdout, run.stdout  # the --set threshold is used
+    assert json.loads(params.read_text()) == {}  # nothing was set over MAVLink
+    # A value set over MAVLink (persisted) wins, and says that it shadows the file's.
+    params.write_text(json.dumps({"TCM_THRESH": 0.09}))
+    run = _cli(*_EVERYTHING_MOVES, *state, cwd=tmp_path)
+    assert run.returncode == 0 and "accuracy 100.0% of" in run.stdout, run.stdout
+    assert (
+        "TCM_THRESH = 0.09 (set over MAVLink) overrides the configuration's"
+        " [classifier] tcm_threshold = 0.001"
+    ) in run.stderr
+    assert json.loads(params.read_text()) == {"TCM_THRESH": 0.09}

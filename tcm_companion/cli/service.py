@@ -370,7 +370,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         # The camera is expected at the rate it is set to ([camera] fps).
         cameras = [CameraInput(cam.name, cam.model, source, fps=cam.source.fps)]
         try:
-            endpoint, warnings = make_endpoint(config.mavlink, monotonic_us())
+            endpoint, warnings = make_endpoint(config.mavlink, monotonic_us(), config.pipeline)
         except SigningKeyError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

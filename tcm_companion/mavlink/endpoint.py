@@ -124,10 +124,11 @@ class CompanionEndpoint:
         signing: SigningConfig | None = None,
         now_us: int = 0,
         threshold: float | None = None,
+        param_defaults: Mapping[str, float] | None = None,
     ) -> None:
         self.config = config
         self.codec = MavlinkCodec(config.default_system_id, config.component_id, signing)
-        self.params = ParamTable(params)
+        self.params = ParamTable(params, param_defaults)
         self.stats: Counter[str] = Counter()
         self.timesync = TimesyncFilter()
         self.telemetry_clock = ClockSync()  # fallback mapping when TIMESYNC is silent

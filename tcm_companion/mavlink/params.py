@@ -59,12 +59,26 @@ assert all(len(p.name) <= 16 for p in PARAMS)
 class ParamTable:
     """Current values in table order; ``set`` range-checks and reports refusals."""
 
-    def __init__(self, initial: Mapping[str, float] | None = None) -> None:
+    def __init__(
+        self,
+        initial: Mapping[str, float] | None = None,
+        defaults: Mapping[str, float] | None = None,
+    ) -> None:
+        """``defaults``: the values the configuration gives (:func:`params_from_config`),
+        else each parameter's own default; ``initial``: values set over MAVLink before
+        (the persisted ones), which take precedence."""
         self.values: dict[str, float] = {p.name: float(p.default) for p in PARAMS}
+        self.ignored_defaults = [n for n, v in (defaults or {}).items() if self.set(n, v) is None]
+        self.defaults = dict(self.values)
         self.ignored_initial: list[str] = []
         for name, value in (initial or {}).items():
             if self.set(name, value) is None:
                 self.ignored_initial.append(name)
+
+    def overrides(self) -> dict[str, float]:
+        """The values that differ from the defaults: what was set over MAVLink, and what
+        to persist (a value equal to the configuration's follows the configuration)."""
+        return {k: v for k, v in self.values.items() if v != self.defaults[k]}
 
     def __len__(self) -> int:
         return len(PARAMS)
@@ -109,6 +123,18 @@ def config_with_params(config: PipelineConfig, values: Mapping[str, float]) -> P
         detection=det,
         egomotion_source=_SOURCES[int(v["TCM_EGO_SRC"])],  # type: ignore[arg-type]
     )
+
+
+#: The configuration key each parameter stands for (:func:`params_from_config`).
+CONFIG_KEYS: dict[str, str] = {
+    "TCM_THRESH": "[classifier] tcm_threshold",
+    "TCM_INTERVAL_S": "[classifier] interval_s",
+    "TCM_HOLD_S": "[classifier] hold_s",
+    "TCM_HUE_MIN": "[detection] seed_hue_deg[0]",
+    "TCM_HUE_MAX": "[detection] seed_hue_deg[1]",
+    "TCM_SAT_MIN": "[detection] seed_min_saturation",
+    "TCM_EGO_SRC": "[pipeline] egomotion_source",
+}
 
 
 def params_from_config(config: PipelineConfig) -> dict[str, float]:

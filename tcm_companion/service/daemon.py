@@ -210,7 +210,7 @@ class Daemon:
             # MAVLink: endpoint (persisted params, signing) and the transport.
             endpoint = self._endpoint
             if endpoint is None:
-                endpoint, warnings = make_endpoint(self.config.mavlink, t0)
+                endpoint, warnings = make_endpoint(self.config.mavlink, t0, self.config.pipeline)
                 self._persist_params = True
                 for w in warnings:
                     log.warning("%s", w)

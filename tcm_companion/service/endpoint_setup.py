@@ -12,9 +12,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from ..core.pipeline import PipelineConfig
 from ..io.persist import ParamStore, TimestampStore, load_signing_key
 from ..mavlink.codec import SigningConfig
 from ..mavlink.endpoint import CompanionEndpoint, EndpointConfig
+from ..mavlink.params import CONFIG_KEYS, params_from_config
 
 
 @dataclass(frozen=True)
@@ -43,8 +45,17 @@ def resolve_state_paths(settings: MavlinkSettings, state_dir: str | Path) -> Mav
     )
 
 
-def make_endpoint(settings: MavlinkSettings, now_us: int) -> tuple[CompanionEndpoint, list[str]]:
+def make_endpoint(
+    settings: MavlinkSettings,
+    now_us: int,
+    pipeline: PipelineConfig | None = None,
+) -> tuple[CompanionEndpoint, list[str]]:
     """The endpoint with its persisted parameters and signing; returns warnings too.
+
+    The parameters start from ``pipeline`` (the configuration: :func:`params_from_config`)
+    and the persisted values — those set over MAVLink — take precedence; a persisted value
+    that differs from the configuration's is named in a warning, so an edit of
+    ``config.toml`` that a value set over MAVLink shadows is never silent.
 
     Raises :class:`~tcm_companion.io.persist.SigningKeyError` when signing is configured
     but the key cannot be used (missing, malformed, readable by others).
@@ -56,8 +67,28 @@ def make_endpoint(settings: MavlinkSettings, now_us: int) -> tuple[CompanionEndp
         signing = SigningConfig(key, settings.signing_link_id, stamp)
     store = ParamStore(settings.params_file)
     values = store.load()
-    endpoint = CompanionEndpoint(settings.endpoint, values, signing, now_us)
+    defaults = params_from_config(pipeline) if pipeline is not None else None
+    endpoint = CompanionEndpoint(
+        settings.endpoint, values, signing, now_us, param_defaults=defaults
+    )
     warnings = list(store.warnings)
+    params = endpoint.params
+    if params.ignored_defaults:
+        warnings.append(
+            "the configuration's "
+            + ", ".join(f"{CONFIG_KEYS[n]} (as {n})" for n in params.ignored_defaults)
+            + " is outside the parameter's range: the parameter's default is used"
+        )
+    if defaults is not None:
+        for name in sorted(set(values) & set(defaults)):
+            if name in params.ignored_initial or params.values[name] == params.defaults[name]:
+                continue
+            warnings.append(
+                f"{settings.params_file}: {name} = {params.values[name]:g} (set over MAVLink)"
+                f" overrides the configuration's {CONFIG_KEYS[name]} = "
+                f"{params.defaults[name]:g}; set it over MAVLink again, or delete it from the"
+                " file, to follow the configuration"
+            )
     if endpoint.params.ignored_initial:
         warnings.append(
             f"{settings.params_file}: ignored out-of-range or unknown "
@@ -67,7 +98,8 @@ def make_endpoint(settings: MavlinkSettings, now_us: int) -> tuple[CompanionEndp
 
 
 def persist(settings: MavlinkSettings, endpoint: CompanionEndpoint) -> None:
-    """Write the parameter values and the signing timestamp back."""
-    ParamStore(settings.params_file).save(endpoint.params.values)
+    """Write the parameters set over MAVLink (those that differ from the configuration's)
+    and the signing timestamp back."""
+    ParamStore(settings.params_file).save(endpoint.params.overrides())
     if endpoint.codec.signing is not None:
         TimestampStore(settings.signing_timestamp_file).save(endpoint.codec.signing_timestamp)

@@ -388,7 +388,7 @@ async def daemon_on_sitl(
     runs on a drone: yields its task and endpoint; stopped (and its link closed) on exit.
     The task's result is the run's summary, or the exception that ended it."""
     settings = resolve_state_paths(config.mavlink, state_dir)
-    endpoint, warnings = make_endpoint(settings, monotonic_us())
+    endpoint, warnings = make_endpoint(settings, monotonic_us(), config.pipeline)
     for w in warnings:
         log.warning("%s", w)
     link = open_transport(sitl.serial1_url)

@@ -341,7 +341,7 @@ def _start_run(
     the flight log (``log_kwargs`` to :func:`~tcm_companion.logsetup.start_flight_log`)."""
     settings = resolve_state_paths(config.mavlink, state_dir)
     scorer = _Scorer(mock, cameras[0].model, times_us[0])
-    endpoint, warnings = make_endpoint(settings, times_us[1])
+    endpoint, warnings = make_endpoint(settings, times_us[1], config.pipeline)
     for w in warnings:
         log.warning("%s", w)
     flight_log = None

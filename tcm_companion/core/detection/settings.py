@@ -45,15 +45,9 @@ _COLOUR_KEYS = (
 
 
 @dataclass(frozen=True)
-class ColourTarget:
-    """One colour to segment: seeds of strong colour, grown through a weaker one.
-
-    ``hue_deg`` is the target's HSV hue (0 red, 60 yellow, 120 green, 180 cyan, 240 blue,
-    300 magenta); ``seed_hue_deg`` and ``grow_hue_deg`` are (low, high) signed degrees
-    from it. The defaults are the paper's red ball against grass, sky, dirt and buildings
-    in daylight (they reject brown/orange dirt, skin, shadows and grey). Grey, white and
-    black objects have no hue: colour segmentation cannot find them.
-    """
+class _ColourKeys:
+    """The keys that describe one colour target (see :class:`ColourTarget`): each
+    ``[[detection.targets]]`` table, and ``[detection]``'s flat keys."""
 
     label: str = ""
     hue_deg: float = 0.0
@@ -65,6 +59,18 @@ class ColourTarget:
     grow_hue_deg: tuple[float, float] = _GROW_HUE_DEG
     grow_min_saturation: float = 0.60
     grow_min_value: float = 0.07
+
+
+@dataclass(frozen=True)
+class ColourTarget(_ColourKeys):
+    """One colour to segment: seeds of strong colour, grown through a weaker one.
+
+    ``hue_deg`` is the target's HSV hue (0 red, 60 yellow, 120 green, 180 cyan, 240 blue,
+    300 magenta); ``seed_hue_deg`` and ``grow_hue_deg`` are (low, high) signed degrees
+    from it. The defaults are the paper's red ball against grass, sky, dirt and buildings
+    in daylight (they reject brown/orange dirt, skin, shadows and grey). Grey, white and
+    black objects have no hue: colour segmentation cannot find them.
+    """
 
     def __post_init__(self) -> None:
         check_colour(self, "ColourTarget")
@@ -181,24 +187,17 @@ def _is_number(x: object) -> bool:
 
 
 @dataclass(frozen=True)
-class DetectionConfig:
+class DetectionConfig(_ColourKeys):
     """Everything ``[detection]`` sets (see the module docstring for the layout).
 
     The colour keys and their defaults are those of the version-1 red-ball detector:
     with ``backend = "colour"`` and nothing else set, detections are bit-identical.
     """
 
+    # (The colour keys of the one target the flat keys describe, unless ``targets`` is
+    # given, come first: :class:`_ColourKeys`.)
     backend: Backend = "colour"
 
-    # -- colour: the one target the flat keys describe (unless ``targets`` is given)
-    label: str = ""
-    hue_deg: float = 0.0
-    seed_hue_deg: tuple[float, float] = _SEED_HUE_DEG
-    seed_min_saturation: float = 0.70
-    seed_min_value: float = 0.15
-    grow_hue_deg: tuple[float, float] = _GROW_HUE_DEG
-    grow_min_saturation: float = 0.60
-    grow_min_value: float = 0.07
     # Several targets at once ([[detection.targets]] tables, the keys above); replaces
     # the flat one.
     targets: tuple[ColourTarget, ...] = ()

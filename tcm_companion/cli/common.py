@@ -14,6 +14,7 @@ import logging
 import math
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -131,28 +132,31 @@ def resolution(text: str) -> tuple[int, int]:
     return size
 
 
-def positive_seconds(text: str) -> float:
-    """``argparse`` type of a duration: a finite number of seconds > 0."""
-    value = _number(text, float, "a number of seconds")
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
-    return value
+def float_in(ok: Callable[[float], bool], must_be: str, what: str = "a number") -> Any:
+    """An ``argparse`` type: a number (``what``) for which ``ok`` holds, else the usage
+    error "must be ``must_be``, got ..."."""
+
+    def parse(text: str) -> float:
+        value = float(_number(text, float, what))
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"must be {must_be}, got {text!r}")
+        return value
+
+    return parse
 
 
-def non_negative_number(text: str) -> float:
-    """``argparse`` type of a scale or a delay: a finite number >= 0."""
-    value = _number(text, float, "a number")
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
-    return value
-
-
-def positive_number(text: str) -> float:
-    """``argparse`` type of a finite number > 0."""
-    value = _number(text, float, "a number")
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
+#: A duration: a finite number of seconds > 0.
+positive_seconds = float_in(
+    lambda v: math.isfinite(v) and v > 0, "a positive number of seconds", "a number of seconds"
+)
+#: A scale or a delay: a finite number >= 0.
+non_negative_number = float_in(lambda v: math.isfinite(v) and v >= 0, "a number >= 0")
+#: A finite number > 0.
+positive_number = float_in(lambda v: math.isfinite(v) and v > 0, "a positive number")
+#: A percentage, 0 to 100.
+percent = float_in(
+    lambda v: 0.0 <= v <= 100.0, "a percentage in [0, 100]", "a percentage in [0, 100]"
+)
 
 
 def whole_number(low: int, high: int | None = None) -> Any:

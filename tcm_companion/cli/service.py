@@ -19,7 +19,6 @@ import argparse
 import contextlib
 import dataclasses
 import logging
-import math
 import os
 import signal
 import sys
@@ -35,6 +34,8 @@ from .common import (
     add_log_level_argument,
     add_set_argument,
     config_from_args,
+    percent,
+    positive_seconds,
     setup_logging,
 )
 
@@ -245,27 +246,6 @@ def _status_printer(every: int, enabled: bool = True) -> contextlib.AbstractCont
     if not enabled or every == 0:
         return contextlib.nullcontext(None)
     return _StatusPrinter(every=every).logs_above()
-
-
-def _float_in(ok: Callable[[float], bool], must_be: str) -> Callable[[str], float]:
-    """An ``argparse`` type: a number for which ``ok`` holds, else "must be ``must_be``"."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not ok(value):
-            raise argparse.ArgumentTypeError(f"must be {must_be}, got {text!r}")
-        return value
-
-    return parse
-
-
-#: ``--duration``: a finite number of seconds > 0.
-_positive_seconds = _float_in(lambda v: math.isfinite(v) and v > 0, "a positive number of seconds")
-#: ``--min-accuracy``: a percentage.
-_percent = _float_in(lambda v: 0.0 <= v <= 100.0, "a percentage in [0, 100]")
 
 
 def _status_every(text: str) -> int:
@@ -609,7 +589,7 @@ def add_parsers(sub: Any) -> None:
     add_log_level_argument(p)
     p.add_argument(
         "--duration",
-        type=_positive_seconds,
+        type=positive_seconds,
         default=None,
         metavar="S",
         help="stop after S seconds (> 0; default: until SIGTERM, exit 0, or SIGINT, exit 130)",
@@ -661,7 +641,7 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=_positive_seconds,
+        type=positive_seconds,
         default=20.0,
         metavar="S",
         help="seconds, > 0 (default 20); SIGINT ends the run early (exit 130)",
@@ -677,7 +657,7 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--min-accuracy",
-        type=_percent,
+        type=percent,
         default=None,
         metavar="PCT",
         help="mock: fail (exit 1) when the accuracy of the decided object-frames after the"

@@ -30,7 +30,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .frames import FloatArray, angle_between, normalize
 from .timebase import frames_to_cover
@@ -223,6 +222,10 @@ class Tracker:
                 # finite by construction), without the solver's call overhead.
                 pairs = [(0, 0)]
             else:
+                # Imported here: scipy.optimize costs ~0.5 s of start-up (replay, the
+                # daemon) and single-object scenes never need it.
+                from scipy.optimize import linear_sum_assignment
+
                 rows, cols = linear_sum_assignment(cost)
                 pairs = list(zip(rows.tolist(), cols.tolist()))
             for r, c in pairs:

@@ -369,6 +369,37 @@ def test_a_parameter_change_rebuilds_the_pipeline_and_keeps_the_telemetry(flight
     assert any(m.state == d.TCM_OBJECT_STATE_STATIONARY for m in drv.statuses()[-10:])
 
 
+def test_parameters_that_cannot_be_applied_together_are_refused_not_raised(
+    flight: Any,
+) -> None:
+    """TCM_HUE_MIN = -40 is within its own range, but a seed range of [-40, 12] leaves the
+    grow range [-30, 14]: applying it raised ValueError out of the event handling (a GCS
+    could stop the daemon with one PARAM_SET). It is refused like an out-of-range value:
+    the table keeps the old value, the reply says so, and a STATUSTEXT says why."""
+    drv = Driver(*flight)
+    drv.run(0, 10)
+    comp = drv.companion
+    before = comp.pipeline(0)
+    mav = d.MAVLink(None)
+    comp.data_to_send()
+    bad = mav.param_set_encode(1, 191, b"TCM_HUE_MIN", -40.0, d.MAV_PARAM_TYPE_REAL32)
+    outs = comp.receive_data(gcs_bytes(bad), drv.now)
+    assert not [o for o in outs if isinstance(o, ParamsChanged)]
+    assert comp.endpoint.params.values["TCM_HUE_MIN"] == -15.0 and comp.pipeline(0) is before
+    comp.process_due(drv.now + 1)
+    sent = decode(comp.data_to_send())
+    replies = [m for m in sent if m.get_type() == "PARAM_VALUE" and m.param_id == "TCM_HUE_MIN"]
+    assert replies and replies[-1].param_value == pytest.approx(-15.0)
+    texts = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")  # chunks
+    assert "TCM_HUE_MIN: seed_hue_deg must lie inside grow_hue_deg" in texts, texts
+    assert comp.endpoint.stats["parameter refused"] == 1
+    # A value that fits is still applied.
+    ok = mav.param_set_encode(1, 191, b"TCM_HUE_MIN", -20.0, d.MAV_PARAM_TYPE_REAL32)
+    outs = comp.receive_data(gcs_bytes(ok), drv.now)
+    assert [o for o in outs if isinstance(o, ParamsChanged) and o.name == "TCM_HUE_MIN"]
+    assert comp.pipeline(0).config.detection.seed_hue_deg == (-20.0, 12.0)
+
+
 def test_an_autopilot_reboot_clock_jump_is_survived(flight: Any) -> None:
     """The autopilot's boot clock restarts mid-flight: the fit restarts, objects recover."""
     scenario, frames = flight

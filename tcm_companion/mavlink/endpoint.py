@@ -34,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter, deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -129,6 +129,11 @@ class CompanionEndpoint:
         self.config = config
         self.codec = MavlinkCodec(config.default_system_id, config.component_id, signing)
         self.params = ParamTable(params, param_defaults)
+        #: Judges a whole candidate table after a PARAM_SET passed its own range check:
+        #: "" if it can be applied, else why not (values that only fail together, e.g. a
+        #: seed hue range that leaves the grow range). The value is then refused as an
+        #: out-of-range one is. Set by the application (the Companion); None: no check.
+        self.param_check: Callable[[Mapping[str, float]], str] | None = None
         self.stats: Counter[str] = Counter()
         self.timesync = TimesyncFilter()
         self.telemetry_clock = ClockSync()  # fallback mapping when TIMESYNC is silent
@@ -426,10 +431,15 @@ class CompanionEndpoint:
             return
         old = self.params.values[name]
         stored = self.params.set(name, float(msg.param_value))
-        if stored is None:
+        problem = "value out of range" if stored is None else ""
+        if stored is not None and stored != old and self.param_check is not None:
+            problem = self.param_check(self.params.values)
+            if problem:
+                self.params.values[name] = old  # refused: the table stays as it was
+        if problem:
             self.stats["parameter refused"] += 1
-            self.statustext(d.MAV_SEVERITY_WARNING, f"{name}: value out of range", now_us)
-        elif stored != old:
+            self.statustext(d.MAV_SEVERITY_WARNING, f"{name}: {problem}", now_us)
+        elif stored is not None and stored != old:
             self._events.append(ParamChanged(name, stored))
         self._send(self._param_value(index), now_us)  # the current value, as the protocol asks
 

@@ -68,7 +68,7 @@ import dataclasses
 import logging
 import math
 from collections import Counter, deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -339,7 +339,21 @@ class Companion:
         self.config = config
         self.endpoint = endpoint
         self.base_pipeline_config = pipeline_config
-        self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+        # A PARAM_SET whose value passes its own range but cannot be applied with the
+        # others (a seed hue range leaving the grow range) is refused by the endpoint,
+        # never raised in the middle of the event loop.
+        endpoint.param_check = self._param_problem
+        try:
+            self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+        except ValueError as exc:
+            # Stored values that cannot be applied together: the configuration's instead.
+            endpoint.params.values.update(endpoint.params.defaults)
+            self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+            endpoint.statustext(
+                d.MAV_SEVERITY_WARNING,
+                f"TCM: stored parameters refused ({_short(exc)}); using the configuration's",
+                now_mono_us,
+            )
         self._timer_kw: dict[str, Callable[[], float]] = (
             {"timer": pipeline_timer} if pipeline_timer is not None else {}
         )
@@ -613,6 +627,14 @@ class Companion:
             result = mark_unknown(result, override)
         return result
 
+    def _param_problem(self, values: Mapping[str, float]) -> str:
+        """Why the parameter ``values`` cannot be applied to the pipeline ("" if they can)."""
+        try:
+            config_with_params(self.base_pipeline_config, values)
+        except ValueError as exc:
+            return _short(exc)
+        return ""
+
     def _apply_params(self, now_mono_us: int) -> None:
         new = config_with_params(self.base_pipeline_config, self.endpoint.params.values)
         if new == self.pipeline_config:
@@ -781,3 +803,11 @@ class Companion:
             f" | drops {self.stats.frames_dropped} | "
             + ("; ".join(problems) if problems else "inputs OK")
         )
+
+
+def _short(exc: Exception) -> str:
+    """A configuration error without its class prefix ("DetectionConfig.seed_hue_deg ..."
+    -> "seed_hue_deg ..."), for a STATUSTEXT."""
+    text = str(exc)
+    head, dot, rest = text.partition(".")
+    return rest if dot and head.endswith("Config") and " " not in head else text

@@ -508,7 +508,10 @@ CRASH_WRITER = textwrap.dedent(
         t_us = time.monotonic_ns() // 1000
         w.log_frame(0, t_us, np.roll(base, 3 * i, axis=1))
         w.log_mavlink("in", t_us, i.to_bytes(4, "little") * 8)
-        print(t_us, i, flush=True)
+        # One write per line: with PYTHONUNBUFFERED print() writes each piece on its own,
+        # and the kill could land between "t_us" and "i".
+        sys.stdout.write(f"{t_us} {i}\\n")
+        sys.stdout.flush()
         t_next += 0.04
         time.sleep(max(0.0, t_next - time.monotonic()))
     """
@@ -541,7 +544,8 @@ def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path) -> None:
             proc.wait()
         reader.join(timeout=10)
     assert proc.returncode == -signal.SIGKILL
-    logged = [tuple(map(int, ln.split())) for ln in lines if ln[:1].isdigit()]
+    # Whole lines only: the kill may cut the last one short.
+    logged = [tuple(map(int, ln.split())) for ln in lines if ln[:1].isdigit() and ln.endswith("\n")]
     last_t, last_i = logged[-1]
 
     (path,) = log_files(logdir)

@@ -500,6 +500,10 @@ RANGES: dict[str, RangeSpec] = {
             "latency_window": "[1, 100000] frames",
             "opencv_threads": "[0, 1024] threads",  # 0: OpenCV's default
             "gil_switch_interval_us": "[1, 1000000] µs",
+            # A frame waits this long for its boxes at most (docs/box-feed.md); a second
+            # is 25 frames at 25 Hz.
+            "box_wait_max_us": "[1, 1000000] µs",
+            "box_feed_timeout_us": "[10000, 60000000] µs",
         },
     ),
     **_ranges(
@@ -1002,6 +1006,12 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
             )
         }
         camera = camera_config_from_table(doc.get("camera", {}), f"{where}: [camera]")
+        if tables["daemon"].box_feed and pipeline.detection.backend != "boxes":
+            raise ConfigError(
+                f'{where}: [daemon] box_feed needs [detection] backend = "boxes" (it is'
+                f" {pipeline.detection.backend!r}): the feed's boxes are that backend's input",
+                "daemon.box_feed",
+            )
     except ConfigError as exc:
         msg = str(exc)
         # Report stage keys under their own table name, as the user wrote them.

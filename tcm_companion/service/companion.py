@@ -91,6 +91,7 @@ from ..mavlink.endpoint import (
     TelemetryRejected,
 )
 from ..mavlink.params import config_with_params
+from .box_feed import parse_feed_url
 from .inputs import Inputs, InputSpec
 
 log = logging.getLogger(__name__)
@@ -146,10 +147,23 @@ class DaemonConfig:
     # Python's GIL switch interval while the daemon runs (default Python: 5000 µs): how
     # long a camera thread with a new frame may wait for the loop thread to let go.
     gil_switch_interval_us: int = 1000
+    # Live boxes for [detection] backend = "boxes" (docs/box-feed.md): where another
+    # process on the companion sends them, "udp:HOST:PORT" ("": no feed) ...
+    box_feed: str = ""
+    # ... how long after its capture a frame waits for its boxes, at most (then it is
+    # processed without them: nothing detected in it, tracks coast) ...
+    box_wait_max_us: int = 100_000
+    # ... and the feed is stale (a fault; objects unknown) after this long without a
+    # valid message.
+    box_feed_timeout_us: int = 1_000_000
 
     def __post_init__(self) -> None:
         if self.opencv_threads < 0:
             raise ValueError(f"opencv_threads must be >= 0, got {self.opencv_threads}")
+        try:
+            parse_feed_url(self.box_feed)
+        except ValueError as exc:
+            raise ValueError(f"box_feed {exc}") from None
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if f.name != "opencv_threads" and isinstance(value, int) and value <= 0:

@@ -396,10 +396,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     ran = run_length_text(summary.duration_s, args.duration, stopped_by)
     if not ran.startswith(("stopped", "interrupted")):
         ran = f"stopped after {ran}"
+    feed = f"; box feed {summary.box_feed}" if summary.box_feed else ""
     print(
         f"{ran}: captured {summary.captured}, processed {summary.processed}, dropped"
         f" {summary.dropped}, failed {summary.failed}, rejected {summary.rejected}; {latency};"
-        f" faults {summary.faults or 'none'}"
+        f" faults {summary.faults or 'none'}{feed}"
     )
     return _Signals.exit_status(True, stopped_by, service=True)
 
@@ -426,6 +427,7 @@ def write_summary_json(path: str, summary: Any) -> None:
         "watchdog_pings": summary.watchdog_pings,
         "watchdog_withheld": summary.watchdog_withheld,
         "frames_waited_for_attitude": summary.stats.frames_waited,
+        "box_feed": getattr(summary, "box_feed", {}),
         "stages_ms": {
             k: {
                 "p50": float(np.percentile(v, 50)) if v else None,

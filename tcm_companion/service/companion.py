@@ -75,6 +75,7 @@ import numpy as np
 
 from ..core.camera import CameraModel
 from ..core.classify import unknown
+from ..core.detection import Box, BoxesDetector
 from ..core.egomotion import TranslationEstimate
 from ..core.pipeline import FrameResult, ObjectResult, Pipeline, PipelineConfig
 from ..core.telemetry import AttitudeSample, ClockSync, PositionSample, TelemetryBuffer
@@ -91,7 +92,8 @@ from ..mavlink.endpoint import (
     TelemetryRejected,
 )
 from ..mavlink.params import config_with_params
-from .box_feed import parse_feed_url
+from .box_feed import INPUT_NAME as BOX_FEED
+from .box_feed import BoxFeedError, parse_box_datagram, parse_feed_url
 from .inputs import Inputs, InputSpec
 
 log = logging.getLogger(__name__)
@@ -105,6 +107,15 @@ _EGO_SOURCE = {
 
 #: A camera's expected frame rate when the driver does not give one (Hz).
 DEFAULT_CAMERA_HZ = 25.0
+#: Boxes stamped more than this after the time they arrive are for a frame not yet
+#: captured: a feeder on another clock (counted ``future``, not used).
+BOX_FUTURE_SLACK_US = 20_000
+#: At most this many frames of a camera wait for their boxes at once (the oldest is
+#: dropped beyond); the wait itself is bounded by ``box_wait_max_us``.
+MAX_FRAMES_WAITING_FOR_BOXES = 16
+#: The box feed's counters that are messages refused or not used (reported in a
+#: STATUSTEXT when they grow; docs/box-feed.md).
+BOX_FEED_BAD = ("malformed", "unknown camera", "late", "future", "boxes refused")
 
 
 def latency_percentile_ms(latencies_ms: Iterable[float], q: float) -> float:
@@ -183,6 +194,10 @@ class CompanionStats:
     objects_sent: int = 0
     objects_unknown_by_input: int = 0
     faults: Counter[str] = field(default_factory=Counter)
+    # The live box feed (docs/box-feed.md): datagrams, accepted messages and their boxes,
+    # what was refused or not used (BOX_FEED_BAD), and frames with / without / waiting
+    # for boxes.
+    box_feed: Counter[str] = field(default_factory=Counter)
 
 
 # -- outputs ----------------------------------------------------------------------------------
@@ -239,6 +254,7 @@ class _Slot:
     capture_mono_us: int
     arrival_mono_us: int
     waited: bool = False
+    waited_for_boxes: bool = False
 
 
 @dataclass
@@ -247,9 +263,12 @@ class _Camera:
     name: str
     model: CameraModel
     pipeline: Pipeline
-    slot: _Slot | None = None
+    # Frames delivered and not yet processed, oldest first: the newest only, unless
+    # older ones still wait for their boxes (the live box feed).
+    pending: list[_Slot] = field(default_factory=list)
     last_objects: tuple[ObjectResult, ...] = ()
     last_capture_mono_us: int | None = None
+    last_processed_capture_mono_us: int | None = None  # whatever its result
     consecutive_errors: int = 0
 
 
@@ -388,6 +407,20 @@ class Companion:
         specs.append(
             InputSpec("position", ecfg.position_rate_hz, config.position_timeout_us, required=False)
         )
+        # The live box feed: one input for every camera's boxes, judged alive only (a
+        # detector may run at any rate).
+        self.box_feed = bool(config.box_feed)
+        if self.box_feed:
+            for c in self.cameras:
+                if not isinstance(c.pipeline.detector, BoxesDetector):
+                    raise ValueError('a box feed needs [detection] backend = "boxes"')
+            specs.append(
+                InputSpec(BOX_FEED, max(rates), config.box_feed_timeout_us, min_rate_fraction=0.0)
+            )
+        self._box_feed_last_mono_us: int | None = None  # the newest well-formed message
+        self._newest_capture_mono_us: int | None = None  # of any frame delivered
+        self._box_feed_bad_reported = 0
+        self._box_feed_logged_mono_us: int | None = None
         self.inputs = Inputs(specs, now_mono_us)
         self.stats = CompanionStats()
         self.latencies_ms: deque[float] = deque(maxlen=config.latency_window)
@@ -415,11 +448,87 @@ class Companion:
         """
         cam = self.cameras[camera_id]
         self.inputs.update(cam.name, now_mono_us, True)
-        if cam.slot is not None:
-            self._drop(now_mono_us)  # the older frame is stale: never queue it
+        newest = self._newest_capture_mono_us
+        self._newest_capture_mono_us = (
+            int(capture_mono_us) if newest is None else max(newest, int(capture_mono_us))
+        )
+        # An older frame still here is stale: never queue it ... unless it still waits
+        # for its boxes (the live feed's detector takes its time; bounded in time by
+        # box_wait_max_us and in number).
+        keep = [s for s in cam.pending if self._held_for_boxes(s, now_mono_us)]
+        keep = keep[-(MAX_FRAMES_WAITING_FOR_BOXES - 1) :]
+        for _ in range(len(cam.pending) - len(keep)):
+            self._drop(now_mono_us)
         # A frame the attitude does not cover yet waits (bounded) for the next sample.
         waits = self.frame_deadline_us(camera_id, capture_mono_us) is not None
-        cam.slot = _Slot(image, int(capture_mono_us), int(now_mono_us), waits)
+        slot = _Slot(image, int(capture_mono_us), int(now_mono_us), waits)
+        slot.waited_for_boxes = self.box_deadline_us(camera_id, slot.capture_mono_us) is not None
+        cam.pending = [*keep, slot]
+
+    def on_box_datagram(self, data: bytes, now_mono_us: int) -> str:
+        """A datagram of the live box feed (``tcm-boxes/1``, :mod:`.box_feed`) arrived at
+        ``now_mono_us``. Returns what became of it: ``"accepted"``, or the counter it
+        went to (``"malformed"``, ``"unknown camera"``, ``"late"``, ``"future"``)."""
+        st = self.stats.box_feed
+        st["datagrams"] += 1
+        try:
+            msg = parse_box_datagram(
+                data, [c.model for c in self.cameras], [c.name for c in self.cameras]
+            )
+        except BoxFeedError as exc:
+            st[exc.kind] += 1
+            self._box_feed_warn(f"{exc.kind} datagram ({exc})", now_mono_us)
+            return exc.kind
+        if msg.refused:
+            st["boxes refused"] += msg.refused
+            self._box_feed_warn(
+                f"{msg.refused} box(es) outside the image or empty, refused", now_mono_us
+            )
+        return self.on_boxes(msg.camera_id, msg.capture_mono_us, msg.boxes, now_mono_us)
+
+    def on_boxes(
+        self, camera_id: int, capture_mono_us: int, boxes: Sequence[Box], now_mono_us: int
+    ) -> str:
+        """Camera ``camera_id``'s frame captured at ``capture_mono_us`` shows ``boxes``
+        (all of them; none: nothing in it), said at ``now_mono_us``. A frame waiting for
+        them is processed at the next :meth:`process_due`. Boxes for a frame already
+        processed (``"late"``) or not yet captured (``"future"``) are counted, not used;
+        otherwise ``"accepted"``. Every such message keeps the feed alive."""
+        st = self.stats.box_feed
+        cam = self.cameras[camera_id]
+        detector = cam.pipeline.detector
+        if not self.box_feed or not isinstance(detector, BoxesDetector):
+            st["unused"] += 1  # no feed configured: nobody expects them
+            return "unused"
+        self.inputs.update(BOX_FEED, now_mono_us, True)
+        self._box_feed_last_mono_us = now_mono_us
+        t = int(capture_mono_us)
+        if t > now_mono_us + BOX_FUTURE_SLACK_US:
+            st["future"] += 1
+            self._box_feed_warn(
+                f"boxes for a frame {(t - now_mono_us) / 1e3:.0f} ms in the future (clock?)",
+                now_mono_us,
+            )
+            return "future"
+        last = cam.last_processed_capture_mono_us
+        if last is not None and t <= last + self._box_tolerance_us():
+            st["late"] += 1
+            return "late"
+        detector.push(t, boxes)
+        st["accepted"] += 1
+        st["boxes"] += len(boxes)
+        return "accepted"
+
+    def _box_tolerance_us(self) -> int:
+        return round(self.pipeline_config.detection.boxes_time_tolerance_s * 1e6)
+
+    def _box_feed_warn(self, text: str, now_mono_us: int) -> None:
+        """Log a problem of the feed (at most one record per 10 s; the counters and the
+        once-a-second STATUSTEXT carry the rest)."""
+        last = self._box_feed_logged_mono_us
+        if last is None or now_mono_us - last >= 10_000_000:
+            self._box_feed_logged_mono_us = now_mono_us
+            log.warning("box feed: %s", text)
 
     def receive_data(self, data: bytes, now_mono_us: int) -> list[Output]:
         """Bytes from the autopilot link (any chunking)."""
@@ -475,8 +584,8 @@ class Companion:
         the end of a frame's wait for the attitude."""
         due = min(self.endpoint.next_deadline_us(), self._next_health_mono_us)
         for cam in self.cameras:
-            if cam.slot is not None:
-                due = min(due, self._slot_due_us(cam.slot))
+            if cam.pending:
+                due = min(due, self._slot_due_us(cam, cam.pending[0]))
         return due
 
     def health_due(self, now_mono_us: int) -> bool:
@@ -495,13 +604,14 @@ class Companion:
             if nxt <= now_mono_us:
                 nxt = now_mono_us + self.config.health_interval_us
             self._next_health_mono_us = nxt
+        # A camera's frames go in capture order: an older one is due whenever a newer one is.
         ready = [
             c
             for c in self.cameras
-            if c.slot is not None and self._slot_due_us(c.slot) <= now_mono_us
+            if c.pending and self._slot_due_us(c, c.pending[0]) <= now_mono_us
         ]
         if ready:
-            cam = min(ready, key=lambda c: (c.slot.capture_mono_us if c.slot else 0, c.camera_id))
+            cam = min(ready, key=lambda c: (c.pending[0].capture_mono_us, c.camera_id))
             out.append(self._process(cam, now_mono_us))
         return out
 
@@ -523,10 +633,10 @@ class Companion:
         """At stop: frames still in their slots are dropped (counted); how many."""
         n = 0
         for cam in self.cameras:
-            if cam.slot is not None:
-                cam.slot = None
+            for _ in cam.pending:
                 self._drop(now_mono_us)
                 n += 1
+            cam.pending = []
         return n
 
     # -- frames ----------------------------------------------------------------------------
@@ -543,9 +653,38 @@ class Companion:
             return None
         return capture_mono_us + self.config.attitude_wait_max_us
 
-    def _slot_due_us(self, slot: _Slot) -> int:
+    def box_deadline_us(self, camera_id: int, capture_mono_us: int) -> int | None:
+        """Until when a frame of ``camera_id`` captured at ``capture_mono_us`` waits for
+        its boxes: ``None`` (it does not) without a live feed, when boxes for it or a
+        later frame have arrived (waiting cannot change them), or when the feed had sent
+        nothing for ``box_feed_timeout_us`` before the newest frame delivered (of any
+        camera: so that an older frame never waits when a newer one would not);
+        otherwise until ``box_wait_max_us`` after its capture."""
+        if not self.box_feed:
+            return None
+        detector = self.cameras[camera_id].pipeline.detector
+        if not isinstance(detector, BoxesDetector) or detector.ready(capture_mono_us):
+            return None
+        last = self._box_feed_last_mono_us
+        newest = max(capture_mono_us, self._newest_capture_mono_us or capture_mono_us)
+        if last is None or newest - last > self.config.box_feed_timeout_us:
+            return None  # nobody is feeding: waiting would only add latency
+        return capture_mono_us + self.config.box_wait_max_us
+
+    def _held_for_boxes(self, slot: _Slot, now_mono_us: int) -> bool:
+        """Whether a newer frame leaves ``slot`` in place: it arrived waiting for its
+        boxes and its bounded wait is not over (its boxes may have come meanwhile, and it
+        is processed next)."""
+        return (
+            slot.waited_for_boxes
+            and slot.capture_mono_us + self.config.box_wait_max_us > now_mono_us
+        )
+
+    def _slot_due_us(self, cam: _Camera, slot: _Slot) -> int:
         deadline = self.frame_deadline_us(0, slot.capture_mono_us)
-        return slot.arrival_mono_us if deadline is None else deadline
+        due = slot.arrival_mono_us if deadline is None else deadline
+        boxes = self.box_deadline_us(cam.camera_id, slot.capture_mono_us)
+        return due if boxes is None else max(due, boxes)
 
     def _drop(self, now_mono_us: int) -> None:
         self.stats.frames_dropped += 1
@@ -575,12 +714,19 @@ class Companion:
         return result
 
     def _process(self, cam: _Camera, now_mono_us: int) -> FrameProcessed:
-        slot = cam.slot
-        assert slot is not None
-        cam.slot = None
+        slot = cam.pending.pop(0)
         if slot.waited:
             self.stats.frames_waited += 1
+        detector = cam.pipeline.detector
+        used_before = detector.stats["used"] if isinstance(detector, BoxesDetector) else 0
         result: FrameResult | None = self._step(cam, slot.image, slot.capture_mono_us, now_mono_us)
+        cam.last_processed_capture_mono_us = slot.capture_mono_us
+        if self.box_feed:
+            st = self.stats.box_feed
+            if slot.waited_for_boxes:
+                st["frames waited"] += 1
+            used = isinstance(detector, BoxesDetector) and detector.stats["used"] > used_before
+            st["frames with boxes" if used else "frames without boxes"] += 1
         offset = self.clock_offset_us()
         self.last_override = ""
         if result is not None:
@@ -693,6 +839,10 @@ class Companion:
             pos = self.inputs.monitors["position"].status(now_mono_us)
             if not pos.healthy:
                 return pos.problem
+        if self.box_feed:
+            feed = self.inputs.monitors[BOX_FEED].status(now_mono_us)
+            if not feed.healthy:
+                return feed.problem
         return ""
 
     # -- once a second ---------------------------------------------------------------------
@@ -733,8 +883,15 @@ class Companion:
                     now_mono_us,
                     key=f"input {name} {condition}",
                 )
-                cam = next((c for c in self.cameras if c.name == name), None)
-                if cam is not None and cam.last_objects:
+                # The box feed's boxes are every camera's objects.
+                cams = (
+                    self.cameras
+                    if name == BOX_FEED
+                    else [c for c in self.cameras if c.name == name]
+                )
+                for cam in cams:
+                    if not cam.last_objects:
+                        continue
                     # Tell the autopilot once that what it last heard is no longer known.
                     # Stamped now: "as of now these are unknown" (the last frame is too
                     # old for the autopilot to accept, which is the point of saying it).
@@ -745,8 +902,38 @@ class Companion:
                     cam.last_objects = ()
             else:
                 self.endpoint.statustext(d.MAV_SEVERITY_INFO, f"TCM: {name} OK", now_mono_us)
+        if self.box_feed:
+            self._report_box_feed(now_mono_us)
         self.endpoint.set_health(self.health_report(now_mono_us))
         return changes
+
+    def box_feed_counts(self) -> dict[str, int]:
+        """The live box feed's counters (:attr:`CompanionStats.box_feed`) with the boxes
+        detectors' own: pushes no frame took (``unmatched``) or dropped for room
+        (``overflow``), over the current pipelines."""
+        out = dict(self.stats.box_feed)
+        for key, name in (("stale", "unmatched"), ("overflow", "overflow")):
+            n = sum(
+                c.pipeline.detector.stats[key]
+                for c in self.cameras
+                if isinstance(c.pipeline.detector, BoxesDetector)
+            )
+            if n:
+                out[name] = n
+        return out
+
+    def _report_box_feed(self, now_mono_us: int) -> None:
+        """A STATUSTEXT when messages were refused or not used since the last one (one
+        condition: the repeat interval of the endpoint paces it)."""
+        st = self.stats.box_feed
+        bad = sum(st[k] for k in BOX_FEED_BAD)
+        if bad <= self._box_feed_bad_reported:
+            return
+        self._box_feed_bad_reported = bad
+        parts = ", ".join(f"{st[k]} {k}" for k in BOX_FEED_BAD if st[k])
+        self.endpoint.statustext(
+            d.MAV_SEVERITY_WARNING, f"TCM: box feed: {parts}", now_mono_us, key="box feed bad"
+        )
 
     def health_flags(self, now_mono_us: int) -> int:
         st = self.inputs.status(now_mono_us)
@@ -812,9 +999,14 @@ class Companion:
         head = f"objects {len(objs)} ({st}) | "
         if ttcs:
             head += f"TTC {min(ttcs):.1f}s | "
+        boxes = ""
+        if self.box_feed:
+            bf = self.stats.box_feed
+            bad = sum(bf[k] for k in BOX_FEED_BAD)
+            boxes = f" | boxes {bf['frames with boxes']} frames, {bad} bad"
         return head + (
             f"{self.frame_rate_hz(now_mono_us):4.1f} fps | {latency}"
-            f" | drops {self.stats.frames_dropped} | "
+            f" | drops {self.stats.frames_dropped}{boxes} | "
             + ("; ".join(problems) if problems else "inputs OK")
         )
 

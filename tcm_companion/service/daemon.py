@@ -9,6 +9,8 @@ with its outputs in :mod:`.plumbing` (shared with the virtual-time SITL).
   clock and hands the frame to the event loop with ``call_soon_threadsafe``; there it
   takes its camera's slot in the Companion (a frame still waiting is dropped, counted).
 - A link task reads the transport and feeds the bytes to the Companion.
+- With ``[daemon] box_feed``, a UDP socket takes the live box feed's datagrams
+  (:mod:`.box_feed`, docs/box-feed.md) to the Companion as they arrive.
 - The main task runs :meth:`Companion.process_due` whenever
   :meth:`Companion.next_deadline_us` has come or an input arrived, writes what the
   Companion has to send at once (a frame's outputs go out the same turn), and waits —
@@ -42,6 +44,7 @@ from ..io.aio import MONOTONIC, LoopClock
 from ..io.cameras.base import Frame
 from ..io.transports import Transport, TransportError, open_transport
 from ..mavlink.endpoint import CompanionEndpoint
+from .box_feed import open_box_feed
 from .companion import Companion, DaemonConfig, FrameProcessed
 from .endpoint_setup import MavlinkSettings, make_endpoint, persist
 from .plumbing import CameraInput, DaemonSummary, NotifierLike, Plumbing
@@ -134,6 +137,11 @@ class Daemon:
         assert self.plumbing is not None
         self.plumbing.frame_arrived(frame, self.clock.now_us())
         self._wake.set()
+
+    def _on_box_datagram(self, data: bytes) -> None:  # on the loop's thread
+        assert self.plumbing is not None
+        self.plumbing.box_datagram(data, self.clock.now_us())
+        self._wake.set()  # a frame waiting for these boxes may go now
 
     # -- tasks -------------------------------------------------------------------------------
     async def _link_reader(self, transport: Transport) -> None:
@@ -245,6 +253,18 @@ class Daemon:
                 loop_healthy=self._loop_healthy,
             )
             notifier = self.plumbing.notifier
+
+            # The live box feed: a UDP socket on the loop, closed on the way out.
+            feed_url = self.config.daemon.box_feed
+            if feed_url:
+                feed, _ = await open_box_feed(feed_url, self._on_box_datagram)
+                stack.callback(feed.close)
+                log.info("box feed: listening on %s", feed_url)
+            elif self.config.pipeline.detection.backend == "boxes":
+                log.warning(
+                    'detection backend "boxes" without [daemon] box_feed: no boxes will'
+                    " arrive, nothing will be detected"
+                )
 
             # Cameras: one reader thread each; stopped (joined) on the way out.
             on_frame = self._make_on_frame(loop)

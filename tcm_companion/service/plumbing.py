@@ -106,6 +106,8 @@ class DaemonSummary:
     watchdog_withheld: int
     faults: dict[str, int] = field(default_factory=dict)
     stage_ms: dict[str, list[float]] = field(default_factory=dict)
+    # The live box feed's counters (Companion.box_feed_counts; empty without a feed).
+    box_feed: dict[str, int] = field(default_factory=dict)
 
     @property
     def frames_balance(self) -> bool:
@@ -182,6 +184,10 @@ class Plumbing:
         if self.flight_log is not None:
             # Every delivered frame, processed or not: the log shows what the camera saw.
             self.flight_log.log_frame(frame.camera_id, frame.t_capture_us, frame.image)
+
+    def box_datagram(self, data: bytes, now_mono_us: int) -> None:
+        """A datagram of the live box feed arrived at ``now_mono_us`` (docs/box-feed.md)."""
+        self.companion.on_box_datagram(data, now_mono_us)
 
     def bytes_received(self, data: bytes, now_mono_us: int) -> None:
         """Bytes read from the autopilot link at ``now_mono_us``."""
@@ -344,4 +350,5 @@ class Plumbing:
             watchdog_withheld=self.watchdog_withheld,
             faults=dict(comp.stats.faults),
             stage_ms={k: list(v) for k, v in self.stage_ms.items()},
+            box_feed=comp.box_feed_counts() if comp.box_feed else {},
         )

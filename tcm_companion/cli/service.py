@@ -427,6 +427,7 @@ def write_summary_json(path: str, summary: Any) -> None:
         "watchdog_pings": summary.watchdog_pings,
         "watchdog_withheld": summary.watchdog_withheld,
         "frames_waited_for_attitude": summary.stats.frames_waited,
+        "objects_sent": summary.stats.objects_sent,
         "box_feed": getattr(summary, "box_feed", {}),
         "stages_ms": {
             k: {

@@ -510,17 +510,17 @@ class Companion:
                 now_mono_us,
             )
             return "future"
+        # Late: for the frame processed last or an older one (that frame went on without
+        # them). Boxes stamped a little after it may be the next frame's: they are
+        # pushed, and if no frame takes them the detector counts them (``unmatched``).
         last = cam.last_processed_capture_mono_us
-        if last is not None and t <= last + self._box_tolerance_us():
+        if last is not None and t <= last:
             st["late"] += 1
             return "late"
         detector.push(t, boxes)
         st["accepted"] += 1
         st["boxes"] += len(boxes)
         return "accepted"
-
-    def _box_tolerance_us(self) -> int:
-        return round(self.pipeline_config.detection.boxes_time_tolerance_s * 1e6)
 
     def _box_feed_warn(self, text: str, now_mono_us: int) -> None:
         """Log a problem of the feed (at most one record per 10 s; the counters and the

@@ -516,6 +516,11 @@ class Companion:
         last = cam.last_processed_capture_mono_us
         if last is not None and t <= last:
             st["late"] += 1
+            self._box_feed_warn(
+                f"boxes {(now_mono_us - t) / 1e3:.0f} ms after capture came for a frame"
+                " already processed (late)",
+                now_mono_us,
+            )
             return "late"
         detector.push(t, boxes)
         st["accepted"] += 1

@@ -504,6 +504,8 @@ RANGES: dict[str, RangeSpec] = {
             # is 25 frames at 25 Hz.
             "box_wait_max_us": "[1, 1000000] µs",
             "box_feed_timeout_us": "[10000, 60000000] µs",
+            "box_tracking_camera": "[0, 255]",  # an index into the cameras
+            "box_tracking_latency_us": "[0, 1000000] µs",
         },
     ),
     **_ranges(
@@ -1006,11 +1008,20 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
             )
         }
         camera = camera_config_from_table(doc.get("camera", {}), f"{where}: [camera]")
-        if tables["daemon"].box_feed and pipeline.detection.backend != "boxes":
+        for key in ("box_feed", "box_tracking"):
+            if getattr(tables["daemon"], key) and pipeline.detection.backend != "boxes":
+                raise ConfigError(
+                    f'{where}: [daemon] {key} needs [detection] backend = "boxes" (it is'
+                    f" {pipeline.detection.backend!r}): the feed's boxes are that backend's"
+                    " input",
+                    f"daemon.{key}",
+                )
+        tracking_camera = tables["daemon"].box_tracking_camera
+        if tables["daemon"].box_tracking and tracking_camera > 0:
             raise ConfigError(
-                f'{where}: [daemon] box_feed needs [detection] backend = "boxes" (it is'
-                f" {pipeline.detection.backend!r}): the feed's boxes are that backend's input",
-                "daemon.box_feed",
+                f"{where}: [daemon] box_tracking_camera = {tracking_camera} is not a camera:"
+                " the daemon runs one ([camera], index 0)",
+                "daemon.box_tracking_camera",
             )
     except ConfigError as exc:
         msg = str(exc)

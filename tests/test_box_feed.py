@@ -262,6 +262,9 @@ class FedDriver:
                 elif kind == "frame":
                     i, t_cap = what
                     comp.on_frame(0, self.frames[i], t_cap, self.now)
+                elif kind == "mavlink":
+                    outs = comp.receive_data(what, self.now)
+                    self.replies += [type(o).__name__ for o in outs]
                 else:
                     self.replies.append(comp.on_box_datagram(what, self.now))
             else:
@@ -439,3 +442,64 @@ def test_without_a_feed_nothing_changes(flight: Any) -> None:
     assert "box feed" not in comp.inputs.monitors
     assert comp.stats.box_feed["unused"] == 21  # (with the warm-up message)
     assert "boxes" not in comp.status_line(drv.now)
+
+
+# -- a tracking camera's CAMERA_TRACKING_IMAGE_STATUS -------------------------------------------
+def tracking_bytes(
+    box: Box | None,
+    status: int = d.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE,
+    mode: int = d.CAMERA_TRACKING_MODE_RECTANGLE,
+) -> bytes:
+    """The message as a MAVLink camera (system 1, component 100) sends it: the rectangle
+    normalised to 0..1."""
+    mav = d.MAVLink(None, srcSystem=1, srcComponent=d.MAV_COMP_ID_CAMERA)
+    w, h = CAMERA.width, CAMERA.height
+    rect = (
+        (box.x_min / w, box.y_min / h, box.x_max / w, box.y_max / h)
+        if box is not None
+        else (math.nan,) * 4
+    )
+    msg = d.MAVLink_camera_tracking_image_status_message(
+        status, mode, d.CAMERA_TRACKING_TARGET_DATA_IN_STATUS, math.nan, math.nan, math.nan, *rect
+    )
+    return bytes(msg.pack(mav))
+
+
+def test_a_tracking_cameras_rectangle_is_the_frames_box(flight: Any) -> None:
+    """CAMERA_TRACKING_IMAGE_STATUS through the endpoint: the rectangle, scaled to the
+    image, is the box of the frame captured box_tracking_latency_us before it arrived;
+    every frame gets its box and the stationary ball is called stationary. A rectangle
+    with NaN corners is malformed, "not tracking" is a frame without boxes."""
+    cfg = DaemonConfig(box_tracking=True, box_tracking_latency_us=60_000)
+    drv = FedDriver(flight, cfg, warm=False)
+    boxes = drv.boxes
+    for i in range(100):
+        t = drv.t(i)
+        drv._at(t + 1_000, "frame", (i, t))
+        found = boxes.get(i, [])
+        data = tracking_bytes(found[0]) if found else tracking_bytes(None, status=0)
+        drv._at(t + 60_000, "mavlink", data)
+    drv._at(drv.t(99) + 70_000, "mavlink", tracking_bytes(None))  # NaN corners
+    drv.run_until(drv.t(99) + 200_000)
+    comp = drv.companion
+    st = comp.stats.box_feed
+    assert st["tracking messages"] == 101
+    assert st["malformed"] == 1
+    # The first two frames went before the first message (60 ms after the first frame,
+    # 20 ms after the second): their boxes were late; every later frame had its own.
+    assert st["accepted"] == 98 and st["late"] == 2
+    assert st["frames with boxes"] == 98 and comp.stats.frames_dropped == 0
+    assert st["boxes"] == sum(1 for i in range(2, 100) if boxes.get(i))
+    labels = {o.label for o in comp.last_objects(0)}
+    assert labels == {"tracked"}
+    decided = [m for m in drv.statuses()[-30:] if m.state != d.TCM_OBJECT_STATE_UNKNOWN]
+    assert len(decided) >= 20
+    assert all(m.state == d.TCM_OBJECT_STATE_STATIONARY for m in decided)
+
+
+def test_tracking_messages_are_ignored_unless_configured(flight: Any) -> None:
+    drv = FedDriver(flight, DaemonConfig(), warm=False)
+    drv._at(drv.t(0), "mavlink", tracking_bytes(drv.boxes[0][0]))
+    drv.run_until(drv.t(0) + 10_000)
+    assert drv.companion.stats.box_feed["tracking ignored"] == 1
+    assert drv.companion.stats.box_feed["accepted"] == 0

@@ -56,6 +56,7 @@ from .events import (
     ParamChanged,
     TelemetryReceived,
     TelemetryRejected,
+    TrackingImageStatus,
 )
 from .params import PARAMS, ParamTable
 from .samples import TELEMETRY_TYPES, Rejected, parse_telemetry
@@ -76,6 +77,7 @@ __all__ = [
     "ParamChanged",
     "TelemetryReceived",
     "TelemetryRejected",
+    "TrackingImageStatus",
 ]
 
 MAV_COMP_ID_ALL = 0
@@ -239,6 +241,22 @@ class CompanionEndpoint:
                     msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3
                 )
                 self._events.append(self.origin)
+        elif kind == "CAMERA_TRACKING_IMAGE_STATUS":
+            # A tracking camera's target (the Companion may take it as a box).
+            self._events.append(
+                TrackingImageStatus(
+                    src,
+                    int(msg.tracking_status),
+                    int(msg.tracking_mode),
+                    int(msg.target_data),
+                    float(msg.rec_top_x),
+                    float(msg.rec_top_y),
+                    float(msg.rec_bottom_x),
+                    float(msg.rec_bottom_y),
+                    int(msg.camera_device_id),
+                    now_us,
+                )
+            )
         else:
             self.stats[f"ignored {kind}"] += 1
 

@@ -57,6 +57,24 @@ class CommandReceived:
 
 
 @dataclass(frozen=True)
+class TrackingImageStatus:
+    """A CAMERA_TRACKING_IMAGE_STATUS (id 275) from a tracking camera: what it tracks, as
+    MAVLink gives it (normalised image coordinates 0..1, x right, y down; NaN unknown).
+    It carries no time: ``recv_us`` is when it arrived (companion monotonic µs)."""
+
+    source: tuple[int, int]  # (system, component) that sent it
+    tracking_status: int  # CAMERA_TRACKING_STATUS_FLAGS
+    tracking_mode: int  # CAMERA_TRACKING_MODE
+    target_data: int  # CAMERA_TRACKING_TARGET_DATA
+    rec_top_x: float
+    rec_top_y: float
+    rec_bottom_x: float
+    rec_bottom_y: float
+    camera_device_id: int
+    recv_us: int
+
+
+@dataclass(frozen=True)
 class GlobalOrigin:
     lat_deg: float
     lon_deg: float
@@ -72,6 +90,7 @@ Event = (
     | ParamChanged
     | CommandReceived
     | GlobalOrigin
+    | TrackingImageStatus
 )
 
 

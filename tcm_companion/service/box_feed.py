@@ -115,13 +115,18 @@ def _box(item: object, i: int, camera: CameraModel) -> Box | None:
             "malformed", f"{where}.label must be a string of at most {MAX_LABEL_CHARS} characters"
         )
     x0, y0, x1, y1 = coords
+    return box_in_image(Box(x0, y0, x1, y1, score, label), camera)
+
+
+def box_in_image(box: Box, camera: CameraModel) -> Box | None:
+    """``box`` if it is a box in ``camera``'s image (``tcm-scenario/1`` pixels: inside
+    ``[0, width] × [0, height]``, not empty; ``x_min > x_max`` only across a full
+    panorama's seam), else None."""
+    x0, y0, x1, y1 = box.x_min, box.y_min, box.x_max, box.y_max
     w, h = camera.width, camera.height
     inside = 0.0 <= min(x0, x1) and max(x0, x1) <= w and 0.0 <= y0 < y1 <= h
-    # x_min > x_max is a box across a full panorama's seam; anywhere else, not a box.
     across = x0 < x1 or (x0 > x1 and wraps_around(camera))
-    if not (inside and across):
-        return None
-    return Box(x0, y0, x1, y1, score, label)
+    return box if inside and across else None
 
 
 def parse_box_datagram(

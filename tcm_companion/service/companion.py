@@ -90,10 +90,11 @@ from ..mavlink.endpoint import (
     ParamChanged,
     TelemetryReceived,
     TelemetryRejected,
+    TrackingImageStatus,
 )
 from ..mavlink.params import config_with_params
 from .box_feed import INPUT_NAME as BOX_FEED
-from .box_feed import BoxFeedError, parse_box_datagram, parse_feed_url
+from .box_feed import BoxFeedError, box_in_image, parse_box_datagram, parse_feed_url
 from .inputs import Inputs, InputSpec
 
 log = logging.getLogger(__name__)
@@ -167,17 +168,31 @@ class DaemonConfig:
     # ... and the feed is stale (a fault; objects unknown) after this long without a
     # valid message.
     box_feed_timeout_us: int = 1_000_000
+    # A tracking camera's CAMERA_TRACKING_IMAGE_STATUS (its rectangle) as the boxes of
+    # camera box_tracking_camera (an index), stamped on receipt minus
+    # box_tracking_latency_us (the message has no time).
+    box_tracking: bool = False
+    box_tracking_camera: int = 0
+    box_tracking_latency_us: int = 50_000
 
     def __post_init__(self) -> None:
         if self.opencv_threads < 0:
             raise ValueError(f"opencv_threads must be >= 0, got {self.opencv_threads}")
+        for name in ("box_tracking_camera", "box_tracking_latency_us"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         try:
             parse_feed_url(self.box_feed)
         except ValueError as exc:
             raise ValueError(f"box_feed {exc}") from None
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if f.name != "opencv_threads" and isinstance(value, int) and value <= 0:
+            if (
+                f.name not in ("opencv_threads", "box_tracking_camera", "box_tracking_latency_us")
+                and isinstance(value, int)
+                and not isinstance(value, bool)
+                and value <= 0
+            ):
                 raise ValueError(f"{f.name} must be > 0, got {value}")
         if self.attitude_wait_max_us < self.attitude_lead_max_us:
             raise ValueError("attitude_wait_max_us must be >= attitude_lead_max_us")
@@ -409,7 +424,12 @@ class Companion:
         )
         # The live box feed: one input for every camera's boxes, judged alive only (a
         # detector may run at any rate).
-        self.box_feed = bool(config.box_feed)
+        self.box_feed = bool(config.box_feed) or config.box_tracking
+        if config.box_tracking and not 0 <= config.box_tracking_camera < len(cameras):
+            raise ValueError(
+                f"box_tracking_camera {config.box_tracking_camera} is not a camera"
+                f" (0..{len(cameras) - 1})"
+            )
         if self.box_feed:
             for c in self.cameras:
                 if not isinstance(c.pipeline.detector, BoxesDetector):
@@ -485,6 +505,39 @@ class Companion:
                 f"{msg.refused} box(es) outside the image or empty, refused", now_mono_us
             )
         return self.on_boxes(msg.camera_id, msg.capture_mono_us, msg.boxes, now_mono_us)
+
+    def on_tracking_image(self, ev: TrackingImageStatus, now_mono_us: int) -> str:
+        """A tracking camera's CAMERA_TRACKING_IMAGE_STATUS as the boxes of camera
+        ``box_tracking_camera``: its rectangle (normalised 0..1, scaled to the image),
+        labelled ``tracked``, for the frame captured ``box_tracking_latency_us`` before it
+        arrived (the message has no time of its own). Not tracking, or tracking a point (no
+        size): no boxes in that frame. What became of it, as :meth:`on_boxes` says, or
+        ``"malformed"`` (a rectangle with NaN corners)."""
+        st = self.stats.box_feed
+        st["tracking messages"] += 1
+        camera_id = self.config.box_tracking_camera
+        model = self.cameras[camera_id].model
+        boxes: list[Box] = []
+        active = ev.tracking_status & d.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+        if active and ev.tracking_mode == d.CAMERA_TRACKING_MODE_RECTANGLE:
+            corners = (ev.rec_top_x, ev.rec_top_y, ev.rec_bottom_x, ev.rec_bottom_y)
+            if not all(math.isfinite(c) for c in corners):
+                st["malformed"] += 1
+                self._box_feed_warn("tracking rectangle with NaN corners", now_mono_us)
+                return "malformed"
+            w, h = model.width, model.height
+            box = Box(
+                corners[0] * w, corners[1] * h, corners[2] * w, corners[3] * h, 1.0, "tracked"
+            )
+            if box_in_image(box, model) is None:
+                st["boxes refused"] += 1
+                self._box_feed_warn("tracking rectangle outside the image or empty", now_mono_us)
+            else:
+                boxes.append(box)
+        elif active:
+            st["tracking without rectangle"] += 1
+        capture = ev.recv_us - self.config.box_tracking_latency_us
+        return self.on_boxes(camera_id, capture, boxes, now_mono_us)
 
     def on_boxes(
         self, camera_id: int, capture_mono_us: int, boxes: Sequence[Box], now_mono_us: int
@@ -567,6 +620,11 @@ class Companion:
                 )
             elif isinstance(ev, AutopilotRebooted):
                 self.stats.faults["autopilot reboot"] += 1
+            elif isinstance(ev, TrackingImageStatus):
+                if self.config.box_tracking:
+                    self.on_tracking_image(ev, now_mono_us)
+                else:
+                    self.stats.box_feed["tracking ignored"] += 1
         return out
 
     def set_log_state(self, state: int, frames_lost: int, messages_lost: int) -> None:

@@ -260,10 +260,13 @@ class Daemon:
                 feed, _ = await open_box_feed(feed_url, self._on_box_datagram)
                 stack.callback(feed.close)
                 log.info("box feed: listening on %s", feed_url)
-            elif self.config.pipeline.detection.backend == "boxes":
+            elif (
+                self.config.pipeline.detection.backend == "boxes"
+                and not self.config.daemon.box_tracking
+            ):
                 log.warning(
-                    'detection backend "boxes" without [daemon] box_feed: no boxes will'
-                    " arrive, nothing will be detected"
+                    'detection backend "boxes" without [daemon] box_feed or box_tracking: no'
+                    " boxes will arrive, nothing will be detected"
                 )
 
             # Cameras: one reader thread each; stopped (joined) on the way out.

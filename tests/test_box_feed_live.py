@@ -113,7 +113,10 @@ def test_a_feeder_process_feeds_boxes_to_a_running_daemon(tmp_path: Path) -> Non
         "camera.loop": "true",
         "mavlink.url": f'"udpout:127.0.0.1:{mav_port}"',
         "daemon.state_dir": f'"{tmp_path / "state"}"',
-        "logging.enabled": "false",
+        # A flight log with lossless frames: process replay must give the same results,
+        # which it can only with the feed's datagrams in the log.
+        "logging.directory": f'"{tmp_path / "logs"}"',
+        "logging.image_format": '"png"',
         "detection.backend": '"boxes"',
         "daemon.box_feed": f'"udp:127.0.0.1:{feed_port}"',
         # The feeder plays its own frame times (it has no camera): half a frame period
@@ -186,3 +189,19 @@ def test_a_feeder_process_feeds_boxes_to_a_running_daemon(tmp_path: Path) -> Non
     assert summary["faults"].get("box feed stale") == 1
     assert summary["frames_balance"]
     assert "box feed" in out  # the summary line prints the counters
+
+    # Process replay of the flight log: every result equal to the logged one (--check),
+    # objects included (the boxes came from the log's /tcm/boxes).
+    logs = sorted((tmp_path / "logs").glob("*.mcap"))
+    assert len(logs) == 1, logs
+    results = tmp_path / "replayed.csv"
+    rp = subprocess.run(
+        [py, "-m", "tcm_companion", "replay", str(logs[0]), "--results", str(results), "--check"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert rp.returncode == 0, rp.stdout + rp.stderr
+    rows = results.read_text().splitlines()[1:]
+    assert sum(1 for r in rows if r.split(",")[2]) >= 50  # rows with a tracked object

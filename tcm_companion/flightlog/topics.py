@@ -26,6 +26,7 @@ RESULT = "/tcm/result"
 HEALTH = "/tcm/health"
 EVENT = "/tcm/event"
 PARAM = "/tcm/param"
+BOXES = "/tcm/boxes"
 
 CAMERA_IMAGE = "/camera{camera}/image"
 CAMERA_ANNOTATIONS = "/camera{camera}/annotations"
@@ -55,6 +56,7 @@ TOPICS: tuple[Topic, ...] = (
     Topic(HEALTH, "json", HEALTH, "once a second: rates, latency, flags, inputs, log counters"),
     Topic(EVENT, "json", EVENT, "input state changes"),
     Topic(PARAM, "json", PARAM, "parameter changes from the ground station"),
+    Topic(BOXES, "json", BOXES, "every box-feed datagram as received (UTF-8 ones)"),
 )
 
 #: The ``frame_id`` of a camera's images and annotations.

@@ -168,7 +168,7 @@ def replay_log(
     companion: Companion | None = None
     images: dict[int, np.ndarray] = {}
     image_topic = log_topics.camera_image(camera_id)
-    topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT}
+    topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT, log_topics.BOXES}
     for rec in read_log(p, topics, report):
         t_mono_us = rec.publish_time_ns // 1000
         if companion is None:
@@ -177,6 +177,8 @@ def replay_log(
             )
         if rec.topic == log_topics.MAVLINK_IN:
             companion.receive_data(rec.data, t_mono_us)
+        elif rec.topic == log_topics.BOXES:  # the live box feed, as the daemon received it
+            companion.on_box_datagram(str(decode_json(rec).get("datagram", "")).encode(), t_mono_us)
         elif rec.topic == image_topic:
             _, t_capture, image = decode_image(rec)
             images[t_capture] = image

@@ -846,6 +846,8 @@ class Companion:
             result = self._step(cam, image, capture_mono_us, process_mono_us)
         finally:
             self.clock.force(None)
+        # What the live box feed's later messages are judged against (late or not).
+        cam.last_processed_capture_mono_us = capture_mono_us
         if result is not None and override:
             result = mark_unknown(result, override)
         return result

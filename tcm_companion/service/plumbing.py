@@ -186,7 +186,15 @@ class Plumbing:
             self.flight_log.log_frame(frame.camera_id, frame.t_capture_us, frame.image)
 
     def box_datagram(self, data: bytes, now_mono_us: int) -> None:
-        """A datagram of the live box feed arrived at ``now_mono_us`` (docs/box-feed.md)."""
+        """A datagram of the live box feed arrived at ``now_mono_us`` (docs/box-feed.md);
+        logged first (process replay feeds it to the Companion again, in order)."""
+        if self.flight_log is not None:
+            try:
+                text = data.decode("utf-8")
+            except UnicodeDecodeError:
+                pass  # malformed: it changes nothing but a counter
+            else:
+                self.flight_log.log_json(topics.BOXES, now_mono_us, {"datagram": text})
         self.companion.on_box_datagram(data, now_mono_us)
 
     def bytes_received(self, data: bytes, now_mono_us: int) -> None:

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tcm_companion.config import ConfigError, config_from_dict
 from tcm_companion.core.camera import Equirectangular, Pinhole
@@ -503,3 +505,63 @@ def test_tracking_messages_are_ignored_unless_configured(flight: Any) -> None:
     drv.run_until(drv.t(0) + 10_000)
     assert drv.companion.stats.box_feed["tracking ignored"] == 1
     assert drv.companion.stats.box_feed["accepted"] == 0
+
+
+# -- anything at all ------------------------------------------------------------------------
+_json = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4)
+    ),
+    max_leaves=12,
+)
+_box_like = st.fixed_dictionaries(
+    {
+        k: st.one_of(st.floats(), st.integers(), st.none(), st.text(max_size=3))
+        for k in ("x_min", "y_min", "x_max", "y_max")
+    },
+    optional={"score": _json, "label": _json},
+)
+_message_like = st.fixed_dictionaries(
+    {},
+    optional={
+        "v": st.one_of(st.just(1), _json),
+        "camera": st.one_of(st.sampled_from([0, 1, "front", "x"]), _json),
+        "capture_mono_us": st.one_of(st.integers(-(2**70), 2**70), _json),
+        "boxes": st.one_of(st.lists(st.one_of(_box_like, _json), max_size=5), _json),
+    },
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.one_of(
+        st.binary(max_size=200),
+        _json.map(lambda x: json.dumps(x).encode()),
+        _message_like.map(lambda x: json.dumps(x).encode()),
+    )
+)
+def test_no_datagram_raises_anything_but_a_refusal(data: bytes) -> None:
+    """Random bytes, random JSON, random near-messages: parsed, or refused with a kind."""
+    try:
+        m = parse_box_datagram(data, [CAMERA], ["front"])
+    except BoxFeedError as exc:
+        assert exc.kind in ("malformed", "unknown camera")
+    else:
+        for b in m.boxes:
+            assert all(math.isfinite(v) for v in (b.x_min, b.y_min, b.x_max, b.y_max, b.score))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_message_like.map(lambda x: json.dumps(x).encode()), max_size=8))
+def test_the_companion_takes_any_datagrams_and_counts_each(datagrams: list[bytes]) -> None:
+    pipeline = dataclasses.replace(PipelineConfig(), detection=DetectionConfig(backend="boxes"))
+    comp = Companion(
+        [CAMERA], pipeline, CompanionEndpoint(now_us=0), 0, DaemonConfig(box_feed=FEED), ["front"]
+    )
+    kinds = [comp.on_box_datagram(data, 1_000_000 + 1000 * i) for i, data in enumerate(datagrams)]
+    st_ = comp.stats.box_feed
+    assert st_["datagrams"] == len(datagrams)
+    for kind in set(kinds):
+        assert st_[kind] == kinds.count(kind)
+    comp.process_due(5_000_000)  # and the health check after them

@@ -140,7 +140,11 @@ class Daemon:
 
     def _on_box_datagram(self, data: bytes) -> None:  # on the loop's thread
         assert self.plumbing is not None
-        self.plumbing.box_datagram(data, self.clock.now_us())
+        try:
+            self.plumbing.box_datagram(data, self.clock.now_us())
+        except Exception:  # a bug must not close the socket (uvloop would) or stop the loop
+            self.plumbing.companion.stats.box_feed["handler error"] += 1
+            log.exception("box feed: a datagram raised")
         self._wake.set()  # a frame waiting for these boxes may go now
 
     # -- tasks -------------------------------------------------------------------------------

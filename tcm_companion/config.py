@@ -439,6 +439,8 @@ RANGES: dict[str, RangeSpec] = {
             "hover_max_baseline_m": "[0, inf) m",
             "max_disparity_sigma": "(0, inf)",  # 0 would refuse every pair
             "min_range_parallax_rad": "[0, pi] rad",
+            # Fit window of a pair's ends; unset: per backend (0 colour, 0.48 s boxes/onnx).
+            "fit_window_s": "[0, 2] s",
         },
     ),
     **_ranges(
@@ -1038,7 +1040,13 @@ def _plain(value: Any) -> Any:
     if hasattr(value, "to_dict") and callable(value.to_dict):
         return _plain(value.to_dict())
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init}
+        # A field left None means "unset" (e.g. a per-backend default): TOML has no null,
+        # so it is left out, and reading the text back leaves it unset again.
+        return {
+            f.name: _plain(getattr(value, f.name))
+            for f in dataclasses.fields(value)
+            if f.init and getattr(value, f.name) is not None
+        }
     if isinstance(value, dict):
         return {k: _plain(v) for k, v in value.items()}
     if isinstance(value, tuple | list):

@@ -9,6 +9,7 @@ import inspect
 import math
 import re
 import tomllib
+import types
 import typing
 from pathlib import Path
 from typing import Any
@@ -49,6 +50,9 @@ def _numeric(tp: Any) -> bool:
         return True
     if typing.get_origin(tp) is tuple:
         args = [a for a in typing.get_args(tp) if a is not Ellipsis]
+        return bool(args) and all(_numeric(a) for a in args)
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):  # float | None: optional
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
         return bool(args) and all(_numeric(a) for a in args)
     return False
 

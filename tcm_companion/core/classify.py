@@ -31,6 +31,10 @@ from .tcm import ecm_omega_rad, triangle_geometry
 Method = Literal["tcm", "ecm", "bsm", "fused"]
 METHODS: tuple[Method, ...] = ("tcm", "ecm", "bsm", "fused")
 State = Literal["moving", "stationary", "unknown"]
+#: Default fit window of a pair's ends per detection backend (s): colour measures sizes
+#: to a fraction of a pixel (δ of a static ball 0.015 ± 0.005) and stays bit-identical with
+#: single observations; a box detector's 1-px / 4 % jitter needs the window (§9).
+FIT_WINDOW_S: dict[str, float] = {"colour": 0.0, "boxes": 0.48, "onnx": 0.48}
 
 
 @dataclass(frozen=True)
@@ -71,6 +75,12 @@ class ClassifierConfig:
     # A stationary object's range needs this much parallax (the bearing change relative
     # to the translation) to be worth reporting: its error is bearing noise / parallax.
     min_range_parallax_rad: float = math.radians(2.0)
+    # Each end of a pair is the size and bearing fitted over this window (s) centred on
+    # it (robust lines against time), and the pair ends half a window before the frame:
+    # a box detector's per-frame jitter averages down instead of passing into δ
+    # (docs/decisions.md §9). 0: the two single observations. None: per backend,
+    # FIT_WINDOW_S (0 for colour, whose sizes are sub-pixel; 0.48 s for boxes and onnx).
+    fit_window_s: float | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.interval_s) and self.interval_s > 0):
@@ -79,10 +89,21 @@ class ClassifierConfig:
             raise ValueError(f"extra_intervals_s must all be > 0, got {self.extra_intervals_s}")
         if not (math.isfinite(self.min_interval_s) and self.min_interval_s > 0):
             raise ValueError(f"min_interval_s must be > 0, got {self.min_interval_s}")
+        if self.fit_window_s is not None and not (
+            math.isfinite(self.fit_window_s) and self.fit_window_s >= 0
+        ):
+            raise ValueError(f"fit_window_s must be >= 0, got {self.fit_window_s}")
         for name in ("hold_s", "interval_tolerance_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be >= 0, got {value}")
+
+    def fit_window_for(self, backend: str) -> float:
+        """The fit window (s) for detections from ``backend``: ``fit_window_s`` when set,
+        else the backend's default (:data:`FIT_WINDOW_S`)."""
+        if self.fit_window_s is not None:
+            return self.fit_window_s
+        return FIT_WINDOW_S.get(backend, 0.0)
 
     @property
     def intervals_s(self) -> tuple[float, ...]:

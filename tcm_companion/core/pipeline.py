@@ -61,7 +61,7 @@ from .tcm import stationary_range_m, triangle_geometry
 from .telemetry import TelemetryBuffer
 from .timebase import frames_to_cover, jitter_slack_s, median_period_s
 from .tracking import Observation, Track, Tracker, TrackerConfig
-from .ttc import TTCConfig, estimate_ttc
+from .ttc import TTCConfig, estimate_ttc, robust_level_at
 
 #: Frame records kept at least (the paper's Fig. 4 study compares frames up to 40 apart,
 #: at 25 Hz, through :meth:`Pipeline.disparities_for_frame_intervals`).
@@ -196,6 +196,8 @@ class Pipeline:
         self._memory: dict[int, deque[tuple[int, Classification]]] = {}
         # Allowance for capture-time jitter this step (s): a quarter frame period.
         self._slack_s = 0.0
+        # Fit window of the pair's ends (classify.fit_window_for): half of it, µs.
+        self._fit_half_us = round(0.5 * cls.fit_window_for(config.detection.backend) * 1e6)
         self.health = PipelineHealth()
 
     @property
@@ -264,7 +266,7 @@ class Pipeline:
         t3 = clock()
         timings["track"] = (t3 - t2) * 1e3
 
-        cache: dict[int, TranslationEstimate] = {}
+        cache: dict[tuple[int, int], TranslationEstimate] = {}
         self._bsm_s = 0.0
         objects = [self._object_result(tr, frame_time_us, cache) for tr in tracks]
         live = {tr.track_id for tr in tracks}
@@ -282,7 +284,7 @@ class Pipeline:
             frame_time_us,
             tuple(objects),
             R_ned_from_cam is not None,
-            cache.get(default_ref.index) if default_ref is not None else None,
+            cache.get((default_ref.index, index)) if default_ref is not None else None,
             timings,
         )
 
@@ -399,18 +401,52 @@ class Pipeline:
             return vision
         return fuse(vision, autopilot, self.config.egomotion)
 
-    def _classify(self, track: Track, cache: dict[int, TranslationEstimate]) -> Classification:
+    def _classify(
+        self,
+        track: Track,
+        cache: dict[tuple[int, int], TranslationEstimate],
+        t_us: int | None = None,
+    ) -> Classification:
         """Compare the newest observation with earlier ones, then apply the hold.
 
         For each interval, the reference is the observation captured nearest
         ``interval_s`` earlier, within ``interval_tolerance_s``. With none for any interval
         (a young track, or detections missed around that time) the one nearest the
         primary interval's time among those at least ``min_interval_s`` old serves.
+
+        With a fit window (``fit_window_s`` > 0, the default for box detectors) the later
+        end is the observation captured nearest half a window before the frame at ``t_us``
+        (the frame being processed; default the track's newest observation), and each end's
+        size and bearing are fitted over the window centred on it (:meth:`_fitted`), so
+        the pair is judged as of half a window ago; a frame that missed the object is
+        still decided from the observations around that time.
         """
         cls = self.config.classifier
         cur = track.last
-        if track.coasting:
+        if self._fit_half_us > 0:
+            now_us = cur.t_us if t_us is None else t_us
+            slack_us = round(self._slack_s * 1e6)
+            anchor = track.nearest_in_time(
+                now_us - self._fit_half_us,
+                self._fit_half_us + slack_us,
+                not_after_us=now_us,
+                prefer_earlier_us=slack_us,
+            )
+            if anchor is None:
+                return unknown("lost track")
+            cur = anchor
+        elif track.coasting:
             return unknown("lost track")
+        fitted: dict[int, Observation] = {}
+
+        def fit(obs: Observation) -> Observation:
+            """The pair's end ``obs``, fitted over its window when there is one."""
+            if self._fit_half_us <= 0:
+                return obs
+            if obs.frame_index not in fitted:
+                fitted[obs.frame_index] = self._fitted(track, obs)
+            return fitted[obs.frame_index]
+
         if not cur.has_attitude:
             return unknown("no attitude")
         slack_us = round(self._slack_s * 1e6)
@@ -425,7 +461,8 @@ class Pipeline:
             if ref is not None:
                 # BSM (a whole-frame warp) only for a full primary-interval pair.
                 full = k_us == interval_us and cur.t_us - ref.t_us >= interval_us - slack_us
-                pairs.append(self._classify_pair(ref, cur, cache, bsm=full))
+                full = full and cur is track.last and not track.coasting
+                pairs.append(self._classify_pair(fit(ref), fit(cur), cache, bsm=full))
         if not pairs:
             newest_us = cur.t_us - round(cls.warmup_moving_s * 1e6) + slack_us
             ref = track.nearest_in_time(
@@ -433,7 +470,7 @@ class Pipeline:
             )
             if ref is None:
                 return unknown("warm-up")
-            pairs.append(self._classify_pair(ref, cur, cache, bsm=False))
+            pairs.append(self._classify_pair(fit(ref), fit(cur), cache, bsm=False))
         decided = [c for c in pairs if c.state != "unknown"]
         if not decided:
             return pairs[-1]
@@ -454,7 +491,7 @@ class Pipeline:
         self,
         ref: Observation,
         cur: Observation,
-        cache: dict[int, TranslationEstimate],
+        cache: dict[tuple[int, int], TranslationEstimate],
         bsm: bool,
     ) -> Classification:
         cls = self.config.classifier
@@ -462,9 +499,10 @@ class Pipeline:
         interval_s = (cur.t_us - ref.t_us) * 1e-6
         if not ref.has_attitude:  # the reference frame had no attitude
             return unknown("no attitude", interval, interval_s)
-        if ref.frame_index not in cache:
-            cache[ref.frame_index] = self._translation(ref.frame_index, cur.frame_index)
-        est = cache[ref.frame_index]
+        key = (ref.frame_index, cur.frame_index)
+        if key not in cache:
+            cache[key] = self._translation(ref.frame_index, cur.frame_index)
+        est = cache[key]
         if not est.valid:
             hovering = est.parallax_rad < self.config.egomotion.min_parallax_rad or (
                 est.magnitude_m < cls.hover_max_baseline_m
@@ -514,6 +552,34 @@ class Pipeline:
             result = replace(result, range_m=float(d1) if float(d1) > 0 else math.nan)
         return result
 
+    def _fitted(self, track: Track, obs: Observation) -> Observation:
+        """``obs`` with its size and local-level bearing fitted over the track's
+        observations captured within half a fit window of it (robust straight lines of
+        ``ln sin α`` and of each bearing component against time, evaluated at its capture
+        time: a box detector's per-frame jitter averages down by about √N); as it is when
+        fewer than two such observations have attitude and a whole object."""
+        span_us = self._fit_half_us + round(self._slack_s * 1e6)
+        near = [
+            o
+            for o in track.history
+            if abs(o.t_us - obs.t_us) <= span_us
+            and o.has_attitude
+            and not o.touches_border
+            and o.angular_radius_rad > 0
+        ]
+        if len(near) < 2 or not obs.has_attitude:
+            return obs
+        t_s = np.array([(o.t_us - obs.t_us) * 1e-6 for o in near])
+        log_sin = np.log(np.sin(np.array([o.angular_radius_rad for o in near])))
+        b = np.array([o.bearing_ned for o in near])
+        level = robust_level_at(t_s, log_sin, 0.0)
+        bearing = np.array([robust_level_at(t_s, b[:, k], 0.0) for k in range(3)])
+        norm = float(np.linalg.norm(bearing))
+        if not (math.isfinite(level) and norm > 0 and math.isfinite(norm)):
+            return obs
+        alpha = math.asin(min(1.0, math.exp(level)))
+        return replace(obs, bearing_ned=bearing / norm, angular_radius_rad=alpha)
+
     def _bsm_score(self, ref: Observation) -> float:
         assert self._bsm is not None
         r0, r1 = self._record(ref.frame_index), self._frames[-1]
@@ -549,10 +615,10 @@ class Pipeline:
         return score
 
     def _object_result(
-        self, track: Track, t_us: int, cache: dict[int, TranslationEstimate]
+        self, track: Track, t_us: int, cache: dict[tuple[int, int], TranslationEstimate]
     ) -> ObjectResult:
         obs = track.last
-        cls = self._classify(track, cache)
+        cls = self._classify(track, cache, t_us)
         # The looming fit: observations captured within window_s of this frame.
         window_us = round(self.config.ttc.window_s * 1e6) - round(self._slack_s * 1e6)
         hist = list(

@@ -89,6 +89,24 @@ def theil_sen_slope(t_s: FloatArray, y: FloatArray) -> tuple[float, float]:
     return med, spread
 
 
+def robust_level_at(t_s: FloatArray, y: FloatArray, t_eval_s: float) -> float:
+    """The value at ``t_eval_s`` of a robust straight line through ``(t_s, y)``: the
+    Theil–Sen slope (:func:`theil_sen_slope`) and the median of the residual levels
+    ``y - slope·(t - t_eval_s)``. With samples spread evenly around ``t_eval_s`` the noise
+    of one sample shrinks by about √N; a single sample is returned as it is; NaN when
+    empty. Times in seconds, any origin (``t_eval_s`` on the same clock)."""
+    t = np.asarray(t_s, dtype=np.float64)
+    v = np.asarray(y, dtype=np.float64)
+    if len(t) == 0:
+        return math.nan
+    if len(t) == 1:
+        return float(v[0])
+    slope, _ = theil_sen_slope(t, v)
+    if not math.isfinite(slope):
+        slope = 0.0
+    return median(v - slope * (t - t_eval_s))
+
+
 def estimate_ttc(
     t_s: FloatArray,
     alpha_rad: FloatArray,

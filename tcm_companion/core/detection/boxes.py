@@ -7,10 +7,11 @@ of the midpoints of its left and right edges (θw) and of its top and bottom edg
 through the camera model, so a panorama's rows far from the equator, a fisheye's rim
 and a distorted pinhole's corners all give true angles (a sphere's box on a panorama:
 exactly its angular diameter across, whatever its elevation). The angular
-radius is half of ``√(θw·θh)`` by default (``box_radius = "mean"``; "short" and "long":
-half of the smaller and the larger): for a sphere, whose box circumscribes its disc, all
-three equal its angular radius; for other shapes the mean changes least as the object
-turns and is the least noisy (docs/detection.md).
+radius is half of the box's diagonal over √2, ``√((θw² + θh²)/2)``, by default
+(``box_radius = "rms"``; "mean": half of ``√(θw·θh)``, "short" and "long": half of the
+smaller and the larger): for a sphere, whose box circumscribes its disc, all four equal
+its angular radius; for a box, a cylinder or a disc seen from a moving camera the
+diagonal follows the range best (docs/decisions.md §9, tools/shape_scale_study.py).
 
 Boxes arrive with the capture time of the frame they were made from: :meth:`BoxesDetector.push`
 (replay pushes each frame's rows of ``detections.csv`` before the frame; a live feeder
@@ -55,10 +56,53 @@ class Box:
     label: str = ""
 
 
+@dataclass(frozen=True, slots=True)
+class BoxExtents:
+    """A box measured through the camera model: its span in pixels (``x0``, ``x1`` =
+    ``x0 + w_px``, unwrapped; ``cx``, ``cy`` its centre), the centre's bearing
+    ``centre_cam`` (camera FRD), the angles from it to the four edge midpoints (``half``:
+    left, right, top, bottom) and the angles across the box along the image's u and v
+    axes (``theta_w_rad``, ``theta_h_rad``)."""
+
+    x0: float
+    x1: float
+    w_px: float
+    h_px: float
+    cx: float
+    cy: float
+    centre_cam: np.ndarray
+    half: np.ndarray
+    theta_w_rad: float
+    theta_h_rad: float
+
+
+def image_axes_cam(camera: CameraModel, u_px: float, v_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit tangent directions (camera FRD) of the image's u and v axes at pixel
+    ``(u_px, v_px)``: where a bearing moves as u, or v, grows (central differences of
+    half a pixel through the camera model, made perpendicular to the pixel's bearing).
+    NaN where the camera has no bearing."""
+    pts = np.array(
+        [
+            [u_px, v_px],
+            [u_px - 0.5, v_px],
+            [u_px + 0.5, v_px],
+            [u_px, v_px - 0.5],
+            [u_px, v_px + 0.5],
+        ],
+        dtype=np.float64,
+    )
+    b = np.asarray(camera.bearing_cam_from_pixel(pts), dtype=np.float64)
+    out = []
+    for d in (b[2] - b[1], b[4] - b[3]):
+        d = d - float(d @ b[0]) * b[0]
+        out.append(d / np.linalg.norm(d))
+    return out[0], out[1]
+
+
 class BoxGeometry:
     """Boxes → :class:`Detection` for one camera (bearing and extent through its model)."""
 
-    def __init__(self, camera: CameraModel, radius: BoxRadius = "mean") -> None:
+    def __init__(self, camera: CameraModel, radius: BoxRadius = "rms") -> None:
         self.camera = camera
         self.radius = radius
         self._w, self._h = camera.width, camera.height
@@ -77,9 +121,10 @@ class BoxGeometry:
         w = box.x_max - box.x_min
         return w + self._w if (w < 0 and self._wrap) else w
 
-    def detection(self, box: Box) -> Detection | None:
-        """The object a box shows, or None if the box is empty, outside the camera's view
-        or (on anything but a full panorama) has ``x_min > x_max``."""
+    def extents(self, box: Box) -> BoxExtents | None:
+        """The box's centre bearing and the angles across it (camera FRD, rad), or None if
+        the box is empty, outside the camera's view or (on anything but a full panorama)
+        has ``x_min > x_max``."""
         w_px, h_px = self.width_px(box), box.y_max - box.y_min
         if not (w_px > 0 and h_px > 0 and w_px <= self._w):
             return None
@@ -98,10 +143,22 @@ class BoxGeometry:
         theta_h = _across(b[3], b[4], float(half[2]), float(half[3]))
         if not (theta_w > 0 and theta_h > 0):
             return None
+        return BoxExtents(x0, x1, w_px, h_px, cx, cy, centre, half, theta_w, theta_h)
+
+    def detection(self, box: Box) -> Detection | None:
+        """The object a box shows, or None if the box is empty, outside the camera's view
+        or (on anything but a full panorama) has ``x_min > x_max``."""
+        ext = self.extents(box)
+        if ext is None:
+            return None
+        x0, x1, w_px, h_px, cx, cy = ext.x0, ext.x1, ext.w_px, ext.h_px, ext.cx, ext.cy
+        centre, half, theta_w, theta_h = ext.centre_cam, ext.half, ext.theta_w_rad, ext.theta_h_rad
         if self.radius == "short":
             alpha = 0.5 * min(theta_w, theta_h)
         elif self.radius == "long":
             alpha = 0.5 * max(theta_w, theta_h)
+        elif self.radius == "rms":
+            alpha = 0.5 * math.sqrt(0.5 * (theta_w * theta_w + theta_h * theta_h))
         else:
             alpha = 0.5 * math.sqrt(theta_w * theta_h)
         bbox = (

@@ -25,8 +25,10 @@ Backend = Literal["colour", "boxes", "onnx"]
 BACKENDS: tuple[Backend, ...] = ("colour", "boxes", "onnx")
 #: How a box's angular radius follows from the angles across it through its centre,
 #: horizontally (θw) and vertically (θh): half of ``min`` (short), of the geometric mean
-#: ``√(θw·θh)`` (mean), of ``max`` (long). docs/detection.md says why "mean".
-BoxRadius = Literal["short", "mean", "long"]
+#: ``√(θw·θh)`` (mean), of ``max`` (long), of the diagonal over √2, ``√((θw² + θh²)/2)``
+#: (rms). For a sphere all four are its angular radius; docs/decisions.md §9 measured
+#: which follows a non-spherical object's range best (rms, the default).
+BoxRadius = Literal["short", "mean", "long", "rms"]
 
 # Red, the version-1 target: hue ranges are signed degrees from hue_deg, positive towards
 # orange/yellow. Saturation and value are fractions (0..1) of HSV's S and V.
@@ -233,7 +235,7 @@ class DetectionConfig(_ColourKeys):
     # -- boxes and onnx
     min_score: float = 0.25  # boxes scoring lower are ignored
     classes: tuple[str, ...] = ()  # keep only boxes with these labels (empty: all)
-    box_radius: BoxRadius = "mean"
+    box_radius: BoxRadius = "rms"
     # boxes: pushed boxes belong to the frame whose capture time is within this of theirs
     boxes_time_tolerance_s: float = 0.01
 
@@ -267,8 +269,8 @@ class DetectionConfig(_ColourKeys):
             raise ValueError("DetectionConfig: max_detections ≥ 1 and colour_sigma_px > 0")
         if not 0.0 <= self.min_score <= 1.0:
             raise ValueError("DetectionConfig.min_score must lie in [0, 1]")
-        if self.box_radius not in ("short", "mean", "long"):
-            raise ValueError("DetectionConfig.box_radius must be one of short, mean, long")
+        if self.box_radius not in ("short", "mean", "long", "rms"):
+            raise ValueError("DetectionConfig.box_radius must be one of short, mean, long, rms")
         if not (math.isfinite(self.boxes_time_tolerance_s) and self.boxes_time_tolerance_s >= 0):
             raise ValueError("DetectionConfig.boxes_time_tolerance_s must be >= 0")
         w, h = self.onnx_input_size

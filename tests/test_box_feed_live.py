@@ -7,6 +7,8 @@ fake NOTIFY_SOCKET — with a generous time-out, never a fixed sleep: the boxes 
 pipeline (frames processed with boxes, objects sent to the autopilot), garbage datagrams
 sent meanwhile are counted and change nothing else, the feeder's end is a ``box feed
 stale`` fault, and SIGTERM still ends the daemon cleanly with every count in its summary.
+Then process replay of the run's flight log reproduces every result (``--check``): the
+feed's datagrams are in the log.
 """
 
 from __future__ import annotations

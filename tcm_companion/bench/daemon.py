@@ -8,6 +8,10 @@ therefore not on the daemon's bill. While it runs, ``/proc/<pid>`` is sampled on
 second for CPU time and resident memory; at the end the daemon's own summary (JSON)
 gives capture-to-MAVLink latency percentiles and the frame accounting.
 
+``--cpu-quota 0.25`` runs the daemon (not the mock) in a cgroup limited to that fraction
+of one core (:class:`CpuQuota`): the emulated slow core of issue 15 (a Raspberry Pi 4's
+core is 2-4x slower than this machine's).
+
 The telemetry is the mock's flight of the same scenario but not the same instant as the
 frames, so the classifications are meaningless here; the work per frame is the same.
 """
@@ -49,6 +53,92 @@ def _proc_sample(pid: int) -> tuple[float, int] | None:
     cpu = (int(fields[11]) + int(fields[12])) / TICKS
     rss = int(statm.split()[1]) * PAGE
     return cpu, rss
+
+
+class CpuQuotaError(RuntimeError):
+    """The CPU quota cannot be set up here (no cgroup cpu controller, or no permission)."""
+
+
+class CpuQuota:
+    """A cgroup whose processes get at most ``fraction`` of one core: the CFS bandwidth
+    limit (``cpu.cfs_quota_us`` per ``cpu.cfs_period_us`` in cgroup v1, ``cpu.max`` in
+    v2) of ``fraction × period_us`` µs of CPU per ``period_us``.
+
+    ``with CpuQuota(0.25) as q: Popen(..., preexec_fn=q.join)`` starts a process inside
+    it (the child joins before it executes anything). ``root``: the cgroup hierarchy
+    (default: the v1 ``cpu`` controller if mounted, else the unified v2 hierarchy); it
+    needs to be writable (root, or a delegated subtree).
+    """
+
+    V1 = Path("/sys/fs/cgroup/cpu")
+    V2 = Path("/sys/fs/cgroup")
+
+    def __init__(self, fraction: float, period_us: int = 100_000, root: Path | None = None) -> None:
+        if not 0.0 < fraction <= 1.0 or period_us < 1000:
+            raise ValueError("cpu quota: fraction in (0, 1], period >= 1000 us")
+        self.fraction = fraction
+        self.period_us = period_us
+        self.quota_us = max(1000, round(fraction * period_us))  # the kernel's minimum: 1 ms
+        if root is None:
+            root = self.V1 if (self.V1 / "cpu.cfs_quota_us").exists() else self.V2
+        self.root = root
+        self.v1 = (root / "cpu.cfs_quota_us").exists()
+        self.dir = root / f"tcm-bench-{os.getpid()}"
+
+    def describe(self) -> str:
+        if self.v1:
+            return (
+                f"cgroup v1 {self.dir}: cpu.cfs_quota_us {self.quota_us}"
+                f" per cpu.cfs_period_us {self.period_us}"
+            )
+        return f"cgroup v2 {self.dir}: cpu.max {self.quota_us} {self.period_us}"
+
+    def __enter__(self) -> CpuQuota:
+        try:
+            if not self.v1 and "cpu" not in (self.root / "cgroup.controllers").read_text().split():
+                raise CpuQuotaError(f"{self.root}: no cpu controller (cgroup.controllers)")
+            self.dir.mkdir()
+            if self.v1:
+                (self.dir / "cpu.cfs_period_us").write_text(str(self.period_us))
+                (self.dir / "cpu.cfs_quota_us").write_text(str(self.quota_us))
+            else:
+                (self.dir / "cpu.max").write_text(f"{self.quota_us} {self.period_us}")
+        except OSError as exc:
+            raise CpuQuotaError(
+                f"--cpu-quota needs a writable cgroup with the cpu controller: {exc}"
+                " (run as root, or in a delegated cgroup)"
+            ) from None
+        return self
+
+    def join(self) -> None:
+        """Move the calling process into the cgroup (``preexec_fn`` of a child)."""
+        (self.dir / "cgroup.procs").write_text(str(os.getpid()))
+
+    def throttling(self) -> dict[str, int]:
+        """The cgroup's ``cpu.stat``: periods, periods throttled, time throttled (µs)."""
+        try:
+            raw = dict(
+                (k, int(v))
+                for k, v in (ln.split() for ln in (self.dir / "cpu.stat").read_text().splitlines())
+            )
+        except (OSError, ValueError):
+            return {}
+        throttled_us = raw.get("throttled_usec", raw.get("throttled_time", 0) // 1000)
+        return {
+            "periods": raw.get("nr_periods", 0),
+            "throttled_periods": raw.get("nr_throttled", 0),
+            "throttled_us": throttled_us,
+        }
+
+    def __exit__(self, *exc: object) -> None:
+        for _ in range(50):  # empty once its processes are reaped
+            try:
+                self.dir.rmdir()
+                return
+            except FileNotFoundError:
+                return
+            except OSError:
+                time.sleep(0.1)
 
 
 def write_frames(directory: Path, scenario: str, seconds: float) -> int:
@@ -113,9 +203,28 @@ def run_daemon_bench(
     out: Callable[[str], Any] = print,
     workdir: str | None = None,
     extra_sets: tuple[str, ...] = (),
+    cpu_quota: float | None = None,
 ) -> dict[str, Any]:
     """Run the daemon for ``duration_s`` and measure it; ``extra_sets`` are more
-    ``--set table.key=value`` overrides (for tuning studies)."""
+    ``--set table.key=value`` overrides (for tuning studies); ``cpu_quota``: the daemon
+    gets at most this fraction of one core (:class:`CpuQuota`)."""
+    quota = CpuQuota(cpu_quota) if cpu_quota is not None else None
+    if quota is None:
+        return _run_daemon_bench(duration_s, scenario, frames_s, out, workdir, extra_sets, None)
+    with quota:
+        out(f"CPU quota: {quota.describe()}")
+        return _run_daemon_bench(duration_s, scenario, frames_s, out, workdir, extra_sets, quota)
+
+
+def _run_daemon_bench(
+    duration_s: float,
+    scenario: str,
+    frames_s: float,
+    out: Callable[[str], Any],
+    workdir: str | None,
+    extra_sets: tuple[str, ...],
+    quota: CpuQuota | None,
+) -> dict[str, Any]:
     tmp = Path(workdir or tempfile.mkdtemp(prefix="tcm-bench-daemon-"))
     frames = tmp / "frames"
     if not any(frames.glob("*.png")):
@@ -143,7 +252,12 @@ def run_daemon_bench(
     for s in sets:
         cmd += ["--set", s]
     daemon = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=quota.join if quota is not None else None,
     )
     samples: list[tuple[float, float, int]] = []  # (wall s, cpu s, rss bytes)
     t0 = time.monotonic()
@@ -196,6 +310,12 @@ def run_daemon_bench(
         "flight_log_writer": measure_flight_log(frames),
         **summary,
     }
+    if quota is not None:
+        result["cpu_quota"] = {
+            "fraction": quota.fraction,
+            "how": quota.describe(),
+            **quota.throttling(),
+        }
     return result
 
 
@@ -209,6 +329,19 @@ def print_daemon_bench(result: dict[str, Any], out: Callable[[str], Any] = print
         f"  p99 {r['latency_p99_ms']:.2f}  max {r['latency_max_ms']:.2f}   (target p99 <= 10)"
     )
     out(f"  CPU: {r['cpu_pct_of_one_core']:.1f}% of one core   (target <= 25%)")
+    q = r.get("cpu_quota")
+    if q is not None:
+        out(
+            f"  CPU quota {100 * q['fraction']:.0f}% of one core: throttled in"
+            f" {q.get('throttled_periods', 0)} of {q.get('periods', 0)} periods,"
+            f" {q.get('throttled_us', 0) / 1e6:.1f} s in all"
+        )
+    processed_hz = r["processed"] / r["duration_s"] if r["duration_s"] else float("nan")
+    overloaded = r.get("faults", {}).get("pipeline overloaded", 0)
+    out(
+        f"  frame rate processed: {processed_hz:.1f} fps of 25;"
+        f" 'pipeline overloaded' reported {overloaded} time(s)"
+    )
     out(
         f"  flight log: {r['log_bytes'] / 1e6:.1f} MB in {r['duration_s']:.0f} s"
         f" = {r['log_gb_per_hour']:.2f} GB/h   (target <= 1 GB/h)"

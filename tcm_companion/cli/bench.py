@@ -11,10 +11,14 @@ from .common import (
     add_config_arguments,
     add_quiet_argument,
     config_from_args,
+    float_in,
     positive_seconds,
     resolution,
     whole_number,
 )
+
+#: ``--cpu-quota``: a fraction of one core.
+fraction_of_a_core = float_in(lambda v: 0.0 < v <= 1.0, "a fraction of one core in (0, 1]")
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -31,10 +35,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 2
-        from ..bench.daemon import print_daemon_bench, run_daemon_bench
+        from ..bench.daemon import CpuQuotaError, print_daemon_bench, run_daemon_bench
 
-        print_daemon_bench(run_daemon_bench(args.duration, extra_sets=tuple(args.set)))
+        try:
+            result = run_daemon_bench(
+                args.duration, extra_sets=tuple(args.set), cpu_quota=args.cpu_quota
+            )
+        except CpuQuotaError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print_daemon_bench(result)
         return 0
+    if args.cpu_quota is not None:
+        print("error: --cpu-quota goes with --daemon", file=sys.stderr)
+        return 2
     from ..bench.pipeline import run_bench
 
     config = config_from_args(args)
@@ -82,5 +96,12 @@ def add_parsers(sub: Any) -> None:
         default=60.0,
         metavar="S",
         help="--daemon: seconds to run (default 60)",
+    )
+    p.add_argument(
+        "--cpu-quota",
+        type=fraction_of_a_core,
+        metavar="F",
+        help="--daemon: limit the daemon to this fraction of one core (0 < F <= 1; e.g."
+        " 0.25, a slow companion computer) with a cgroup CPU quota (needs root)",
     )
     p.set_defaults(func=cmd_bench)

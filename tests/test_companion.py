@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from typing import Any
 
 import numpy as np
@@ -551,3 +552,43 @@ def test_a_camera_is_slow_against_its_own_frame_rate(flight: Any) -> None:
         Companion([CAMERA], PipelineConfig(), CompanionEndpoint(now_us=0), 0, camera_rates_hz=[])
     with pytest.raises(ValueError, match="positive"):
         Companion([CAMERA], PipelineConfig(), CompanionEndpoint(now_us=0), 0, camera_rates_hz=[0.0])
+
+
+def test_an_overloaded_pipeline_is_one_fault_and_decisions_go_on(flight: Any) -> None:
+    """A pipeline that gets to only every other frame (each frame superseded by the next
+    before it was processed, as on a slow core) is ``overloaded``: one fault, one
+    STATUSTEXT naming the rate managed, shown on the status line; the objects are still
+    decided at that rate (the method's durations are seconds); when frames stop being
+    dropped it says it keeps up again."""
+    scenario, frames = flight
+    drv = Driver(scenario, frames)
+    comp = drv.companion
+    t_us = scenario.frame_times_us
+    for i in range(0, 76, 2):  # 3 s: frame i still waits when frame i + 1 arrives
+        arrive = int(t_us[i + 1]) + 1_000
+        drv.advance(arrive)
+        comp.on_frame(0, frames[i], int(t_us[i]), arrive)
+        comp.on_frame(0, frames[i + 1], int(t_us[i + 1]), arrive)
+        drv.advance(arrive + comp.config.attitude_wait_max_us)
+    assert comp.stats.frames_dropped == 38
+    overloaded = [h for h in drv.health_checks() if "overloaded" in h.status_line]
+    assert len(overloaded) >= 2, [h.status_line for h in drv.health_checks()]
+    assert re.search(r"overloaded: processing 1[23]\.\d of 25 fps$", overloaded[-1].status_line)
+    assert d.TCM_HEALTH_OVERLOADED & overloaded[-1].report.health_flags
+    # Decided at half the rate: TS's ball is stationary, and TCM says so.
+    late = [o for r in drv.results[-10:] if r is not None for o in r.objects]
+    assert late and all(o.state == "stationary" for o in late), [o.state for o in late]
+    drv.run(76, len(frames))  # every frame processed again
+    drv.advance(drv.now + 2_500_000)
+    assert comp.stats.faults["pipeline overloaded"] == 1, dict(comp.stats.faults)
+    texts = drv.texts()
+    onset = [t for t in texts if "overloaded" in t]
+    assert len(onset) == 1 and re.fullmatch(
+        r"TCM: overloaded: processing \d+\.\d of 25 fps", onset[0]
+    )
+    assert "TCM: pipeline keeping up" in texts
+    assert [c for h in drv.health_checks() for c in h.changes if c[0] == "pipeline"] == [
+        ("pipeline", onset[0].removeprefix("TCM: ")),
+        ("pipeline", ""),
+    ]
+    assert "overloaded" not in drv.health_checks()[-1].status_line

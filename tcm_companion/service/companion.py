@@ -36,6 +36,10 @@ Policies that live here:
 - **One slot per camera.** A frame delivered while the previous one of its camera still
   waits replaces it; the replaced one is counted as dropped (``stats.frames_dropped``),
   and the health message flags the overload for 2 s. Stale frames are never queued.
+  Dropping frames is ``overloaded`` (``processing 14.2 of 25 fps``): one fault until no
+  frame was dropped for :data:`OVERLOAD_WINDOW_US`, announced once (STATUSTEXT), shown on
+  the status line; the method's durations are seconds, so decisions go on at the rate
+  managed (docs/decisions.md §7).
 - **Attitude at the frame time.** A frame is ready at once when the autopilot's newest
   attitude sample is at most ``attitude_lead_max_us`` older than the frame (the pipeline
   slerps and, over that short span, extrapolates); otherwise it waits for the sample
@@ -117,6 +121,8 @@ MAX_FRAMES_WAITING_FOR_BOXES = 16
 #: The box feed's counters that are messages refused or not used (reported in a
 #: STATUSTEXT when they grow; docs/box-feed.md).
 BOX_FEED_BAD = ("malformed", "unknown camera", "late", "future", "boxes refused")
+#: Frames dropped within this long make the pipeline "overloaded" (health flag, problem).
+OVERLOAD_WINDOW_US = 2_000_000
 
 
 def latency_percentile_ms(latencies_ms: Iterable[float], q: float) -> float:
@@ -380,6 +386,7 @@ class Companion:
             if camera_rates_hz is None
             else [float(r) for r in camera_rates_hz]
         )
+        self._expected_hz = sum(rates)
         if len(rates) != len(cameras):
             raise ValueError(f"{len(cameras)} camera(s) but {len(rates)} camera rate(s)")
         if not all(math.isfinite(r) and r > 0 for r in rates):
@@ -447,6 +454,8 @@ class Companion:
         self._frame_times_mono_us: deque[int] = deque(maxlen=64)
         self._last_translation: TranslationEstimate | None = None
         self._last_drop_mono_us: int | None = None
+        self._drops_mono_us: deque[int] = deque(maxlen=1024)  # the recent drops' times
+        self._overloaded = False  # the condition announced by the last health check
         self._next_health_mono_us = now_mono_us + config.health_interval_us
         self.last_override = ""  # why the last processed frame's objects were made unknown
         # The flight log's state (set_log_state), reported in the health message.
@@ -752,6 +761,18 @@ class Companion:
     def _drop(self, now_mono_us: int) -> None:
         self.stats.frames_dropped += 1
         self._last_drop_mono_us = now_mono_us
+        self._drops_mono_us.append(now_mono_us)
+
+    def overload_problem(self, now_mono_us: int) -> str:
+        """``overloaded: processing 14.2 of 25 fps`` while frames were dropped (superseded
+        before the pipeline got to them) within :data:`OVERLOAD_WINDOW_US`; "" otherwise."""
+        recent = sum(1 for t in self._drops_mono_us if now_mono_us - t < OVERLOAD_WINDOW_US)
+        if not recent:
+            return ""
+        return (
+            f"overloaded: processing {self.frame_rate_hz(now_mono_us):.1f}"
+            f" of {self._expected_hz:g} fps"
+        )
 
     def _step(
         self, cam: _Camera, image: np.ndarray, capture_mono_us: int, now_mono_us: int
@@ -933,7 +954,8 @@ class Companion:
 
     def tick(self, now_mono_us: int) -> list[tuple[str, str]]:
         """The input part of the health check (run by :meth:`process_due` once a
-        second); returns the input changes ``(input, problem)`` it reported."""
+        second); returns the input changes ``(input, problem)`` it reported, and
+        ``("pipeline", problem)`` when the pipeline starts or stops being overloaded."""
         # Once per condition (Inputs.changes): a slow camera whose measured rate moves
         # from 8 to 9 Hz is the same fault, not a new one to count, announce and clear
         # the objects for.
@@ -969,6 +991,20 @@ class Companion:
                 self.endpoint.statustext(d.MAV_SEVERITY_INFO, f"TCM: {name} OK", now_mono_us)
         if self.box_feed:
             self._report_box_feed(now_mono_us)
+        overload = self.overload_problem(now_mono_us)
+        if bool(overload) != self._overloaded:
+            # One fault per overloaded spell, however the managed rate moves meanwhile.
+            self._overloaded = bool(overload)
+            if overload:
+                self.stats.faults["pipeline overloaded"] += 1
+                self.endpoint.statustext(
+                    d.MAV_SEVERITY_WARNING, f"TCM: {overload}", now_mono_us, key="overload"
+                )
+            else:
+                self.endpoint.statustext(
+                    d.MAV_SEVERITY_INFO, "TCM: pipeline keeping up", now_mono_us
+                )
+            changes = [*changes, ("pipeline", overload)]
         self.endpoint.set_health(self.health_report(now_mono_us))
         return changes
 
@@ -1014,7 +1050,7 @@ class Companion:
             flags |= d.TCM_HEALTH_TIMESYNC_LOST
         if (
             self._last_drop_mono_us is not None
-            and now_mono_us - self._last_drop_mono_us < 2_000_000
+            and now_mono_us - self._last_drop_mono_us < OVERLOAD_WINDOW_US
         ):
             flags |= d.TCM_HEALTH_OVERLOADED
         if self.log_state == d.TCM_LOG_STATE_FAULT:
@@ -1061,6 +1097,9 @@ class Companion:
         else:
             latency = "latency n/a"  # no frame's output written yet
         problems = [s.problem for s in self.inputs.status(now_mono_us).values() if s.problem]
+        overload = self.overload_problem(now_mono_us)
+        if overload:
+            problems.append(overload)
         head = f"objects {len(objs)} ({st}) | "
         if ttcs:
             head += f"TTC {min(ttcs):.1f}s | "

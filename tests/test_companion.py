@@ -394,6 +394,16 @@ def test_parameters_that_cannot_be_applied_together_are_refused_not_raised(
     texts = "".join(m.text for m in sent if m.get_type() == "STATUSTEXT")  # chunks
     assert "TCM_HUE_MIN: seed_hue_deg must lie inside grow_hue_deg" in texts, texts
     assert comp.endpoint.stats["parameter refused"] == 1
+    # The parameters have their settings' ranges ([0, 10] s for the interval, whose
+    # setting is (0, 10]): the zero that range admits is refused by the same check, and a
+    # seed range upside down too.
+    for name, value in ((b"TCM_INTERVAL_S", 0.0), (b"TCM_HUE_MIN", 20.0)):
+        raw = mav.param_set_encode(1, 191, name, value, d.MAV_PARAM_TYPE_REAL32)
+        assert not [
+            o for o in comp.receive_data(gcs_bytes(raw), drv.now) if isinstance(o, ParamsChanged)
+        ]
+    assert comp.endpoint.stats["parameter refused"] == 3
+    assert comp.pipeline(0) is before
     # A value that fits is still applied.
     ok = mav.param_set_encode(1, 191, b"TCM_HUE_MIN", -20.0, d.MAV_PARAM_TYPE_REAL32)
     outs = comp.receive_data(gcs_bytes(ok), drv.now)

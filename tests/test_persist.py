@@ -89,3 +89,35 @@ def test_make_endpoint_signing_and_params(tmp_path: Path) -> None:
     persist(settings, ep)
     again, _ = make_endpoint(settings, 0)
     assert again.codec.signing_timestamp == 4242
+
+
+def test_each_parameter_has_the_range_of_the_setting_it_stands_for() -> None:
+    """A value config.toml admits is one its MAVLink parameter admits (before: a
+    configured interval of 3 s or a seed hue of -70 deg was replaced by the parameter's
+    default, with a warning)."""
+    from tcm_companion.config import RANGES, PerItem, Range
+    from tcm_companion.mavlink.params import CONFIG_KEYS, PARAMS
+
+    specs = {p.name: p for p in PARAMS}
+    for name, key in CONFIG_KEYS.items():
+        table, _, field = key.removeprefix("[").partition("] ")
+        field = field.split("[")[0]
+        spec = RANGES.get(f"{table}.{field}")
+        if spec is None:  # an enumeration (egomotion_source): its index range
+            continue
+        assert isinstance(spec, Range) and not isinstance(spec, PerItem), key
+        assert (specs[name].minimum, specs[name].maximum) == (spec.lo, spec.hi), name
+
+
+def test_a_configured_value_the_old_parameter_range_refused_is_used(tmp_path: Path) -> None:
+    from tcm_companion.core.classify import ClassifierConfig
+    from tcm_companion.core.pipeline import PipelineConfig
+    from tcm_companion.mavlink.params import config_with_params
+    from tcm_companion.service.endpoint_setup import MavlinkSettings, make_endpoint
+
+    pipeline = PipelineConfig(classifier=ClassifierConfig(interval_s=3.0, hold_s=2.5))
+    settings = MavlinkSettings(params_file=str(tmp_path / "params.json"))
+    ep, warnings = make_endpoint(settings, 0, pipeline)
+    assert warnings == []
+    used = config_with_params(pipeline, ep.params.values)
+    assert (used.classifier.interval_s, used.classifier.hold_s) == (3.0, 2.5)

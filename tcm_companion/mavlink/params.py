@@ -12,6 +12,13 @@ replace ``TCM_INTERVAL`` and ``TCM_HOLD``, which counted frames (a frame is 40 m
 25 Hz). New names rather than new units under the old ones, so that a frame count stored
 on the companion or saved in a GCS parameter file is refused as unknown (and reported)
 instead of being read as seconds: an old ``TCM_HOLD`` of 3 frames would have become 3 s.
+
+A parameter that stands for a configuration key (:data:`CONFIG_KEYS`) has that key's
+range (``config.py`` states it; a test holds the two together), so every value
+``config.toml`` admits is one the parameter admits too: a configured 3-s interval is
+used, not replaced by the parameter's default. Values that fit their own ranges but not
+each other (a seed hue range leaving the grow range, a zero interval) are refused by the
+Companion's check of the whole table.
 """
 
 from __future__ import annotations
@@ -38,10 +45,10 @@ class ParamSpec:
 
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("TCM_THRESH", 0.09, 0.0, 2.0, False, "TCM disparity threshold (moving above)"),
-    ParamSpec("TCM_INTERVAL_S", 1.0, 0.1, 2.0, False, "time between compared observations, s"),
-    ParamSpec("TCM_HOLD_S", 0.48, 0.0, 2.0, False, "time a disparity keeps counting, s"),
-    ParamSpec("TCM_HUE_MIN", -15.0, -60.0, 0.0, False, "detector seed hue lower bound, deg"),
-    ParamSpec("TCM_HUE_MAX", 12.0, 0.0, 60.0, False, "detector seed hue upper bound, deg"),
+    ParamSpec("TCM_INTERVAL_S", 1.0, 0.0, 10.0, False, "time between compared observations, s"),
+    ParamSpec("TCM_HOLD_S", 0.48, 0.0, 10.0, False, "time a disparity keeps counting, s"),
+    ParamSpec("TCM_HUE_MIN", -15.0, -90.0, 90.0, False, "detector seed hue lower bound, deg"),
+    ParamSpec("TCM_HUE_MAX", 12.0, -90.0, 90.0, False, "detector seed hue upper bound, deg"),
     ParamSpec("TCM_SAT_MIN", 0.70, 0.0, 1.0, False, "detector seed minimum saturation"),
     ParamSpec("TCM_EGO_SRC", 2, 0, 2, True, "egomotion source: 0 vision, 1 autopilot, 2 fused"),
     ParamSpec("TCM_TTC_ALARM", 3.0, 0.0, 60.0, False, "time to contact alarm, s (0: off)"),

@@ -420,7 +420,7 @@ RANGES: dict[str, RangeSpec] = {
         "classifier",
         {
             # Histories hold the longest interval at 60 fps: 10 s keeps them at 600 frames
-            # (the paper: 1 s; the GCS parameter TCM_INTERVAL_S allows 0.1..2 s).
+            # (the paper: 1 s; the GCS parameter TCM_INTERVAL_S has this range too).
             "interval_s": "(0, 10] s",
             "extra_intervals_s": "(0, 10] s",
             "hold_s": "[0, 10] s",

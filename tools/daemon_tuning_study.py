@@ -12,7 +12,7 @@ share, CPU and RSS. Run:
 
 from __future__ import annotations
 
-import sys
+import argparse
 import tempfile
 
 from tcm_companion.bench.daemon import run_daemon_bench
@@ -28,7 +28,9 @@ VARIANTS: list[tuple[str, tuple[str, ...]]] = [
 
 
 def main() -> None:
-    duration = float(sys.argv[1]) if len(sys.argv) > 1 else 30.0
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("duration", nargs="?", type=float, default=30.0, help="s per variant (30)")
+    duration = ap.parse_args().duration
     work = tempfile.mkdtemp(prefix="tcm-tuning-")
     print(f"{duration:.0f} s per variant, 25 Hz, 360x220; latency in ms (capture -> MAVLink)")
     print(

@@ -22,6 +22,7 @@ Default: 15° and 0.03.
 
 from __future__ import annotations
 
+import argparse
 import collections
 import dataclasses
 import math
@@ -74,4 +75,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     main()

@@ -16,7 +16,7 @@ Run: ``.venv/bin/python tools/pipeline_pacing_study.py [FRAMES]``
 
 from __future__ import annotations
 
-import sys
+import argparse
 import tempfile
 import threading
 import time
@@ -55,7 +55,9 @@ class _Decoder:
 
 
 def main() -> None:
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 300
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("frames", nargs="?", type=int, default=300, help="frames per pacing (300)")
+    n = ap.parse_args().frames
     tune_allocator()  # as the CLI (and so the daemon) does
     cv2.setNumThreads(1)
     config = AppConfig()

@@ -108,3 +108,21 @@ def test_atomic_helpers(tmp_path: Path) -> None:
         raise ValueError("interrupted")
     assert not (tmp_path / "d").exists()
     assert sorted(x.name for x in tmp_path.iterdir()) == ["a.txt"]
+
+
+def test_eval_skips_an_unreadable_frame_and_says_so(
+    scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """As replay and plot do (before, eval stopped with "cannot be read as an image"):
+    the frame's truth objects count as undecided, the report and stderr say which frame,
+    and the frame is not also blamed on the telemetry ("no attitude")."""
+    (scenario / "frames" / "000050.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    out = tmp_path / "eval"
+    assert cli.main(["eval", str(scenario), "--out", str(out), "--no-bsm", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "1 unreadable frame(s) skipped" in err and "000050.png" in err
+    assert "no attitude" not in err
+    report = (out / "report.txt").read_text()
+    assert "1 unreadable frame(s) skipped" in report
+    row = next(ln for ln in report.splitlines() if ln.startswith("EX-T90 "))
+    assert "100.0%" in row  # what was decided is still right

@@ -13,6 +13,7 @@ from ..sim.scene.names import SCENARIO_NAMES
 from .common import (
     CAMERA_PRESETS,
     TOOLS_HINT,
+    TolerantFrames,
     add_command,
     add_config_arguments,
     add_quiet_argument,
@@ -69,14 +70,17 @@ def _no_decision(records: Sequence[Any], cls: Any) -> str | None:
 
 class _FrameCounter:
     """``evaluate_scenario``'s ``on_frame``: advances the progress bar and counts the
-    frames the pipeline had no attitude for (telemetry that does not cover them)."""
+    frames the pipeline had no attitude for (telemetry that does not cover them); not
+    those it could not read (``unreadable``: their ``(index, why)``, reported apart)."""
 
-    def __init__(self, bar: Any) -> None:
+    def __init__(self, bar: Any, unreadable: Sequence[tuple[int, str]] = ()) -> None:
         self.bar = bar
         self.no_attitude = 0
+        self._unreadable = unreadable
 
     def __call__(self, result: Any) -> None:
-        if not result.attitude_ok:
+        skipped = self._unreadable and self._unreadable[-1][0] == result.frame_index
+        if not result.attitude_ok and not skipped:
             self.no_attitude += 1
         self.bar.update(1)
 
@@ -132,12 +136,23 @@ def run_evaluation(
     for res in resolutions:
         group_evals = []
         for sc in scenarios:
-            src = sc if res is None else at_resolution(sc, *res)
+            # An unreadable frame is skipped and reported, as replay and plot do (its truth
+            # objects count as undecided), not the end of the evaluation.
+            base = TolerantFrames(sc) if hasattr(sc, "iter_frames_tolerant") else sc
+            src = base if res is None else at_resolution(base, *res)
             size = f"{src.camera.width}x{src.camera.height}"
             with progress(src.n_frames, f"{sc.name} {size}", progress_bars) as bar:
-                counter = _FrameCounter(bar)
+                counter = _FrameCounter(bar, getattr(base, "unreadable", []))
                 ev = evaluate_scenario(
                     src, config, with_bsm=with_bsm, intervals=intervals, on_frame=counter
+                )
+            unreadable = getattr(base, "unreadable", [])
+            if unreadable:
+                first = "; ".join(why for _, why in unreadable[:3])
+                more = f" and {len(unreadable) - 3} more" if len(unreadable) > 3 else ""
+                warn(
+                    f"{sc.name} {size}: {len(unreadable)} unreadable frame(s) skipped"
+                    f" ({first}{more}): their objects count as undecided"
                 )
             if counter.no_attitude:
                 warn(

@@ -187,7 +187,7 @@ class ResizedScenario:
     def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
         size = (self.camera.width, self.camera.height)
         for i, t, img in self.inner.iter_frames():
-            if img.shape[1::-1] == size:
+            if img is None or img.shape[1::-1] == size:  # None: unreadable (TolerantFrames)
                 yield i, t, img
             else:
                 yield i, t, cv2.resize(img, size, interpolation=cv2.INTER_AREA)

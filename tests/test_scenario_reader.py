@@ -285,3 +285,32 @@ def test_truth_time_to_contact_is_range_over_closing_speed() -> None:
     np.testing.assert_allclose(ttc[:n], d1 / 2.0, rtol=1e-9)
     assert np.isnan(ttc[n:]).all()
     assert list(truth.rows_for_object(2)) == list(range(n, 2 * n))
+
+
+def test_frames_are_read_ahead_in_order_and_the_reader_thread_ends(tmp_path: Path) -> None:
+    """The next PNG is decoded on a thread while the caller works on this one: the images
+    and their order are those of reading each one when asked, a bad frame is still
+    reported at its own index, and stopping early leaves no reader thread behind."""
+    import threading
+
+    import cv2
+
+    sc = load_scenario(example_path("EX-PINHOLE"))
+    expected = [cv2.imread(str(sc.frame_path(i)), cv2.IMREAD_COLOR) for i in range(sc.n_frames)]
+    got = list(sc.iter_frames())
+    assert [i for i, _, _ in got] == list(range(sc.n_frames))
+    assert all(np.array_equal(img, e) for (_, _, img), e in zip(got, expected, strict=True))
+
+    dst = tmp_path / "sc"
+    shutil.copytree(example_path("EX-PINHOLE"), dst)
+    (dst / "frames" / "000003.png").write_bytes(b"")
+    damaged = load_scenario(dst, check_frames=False)
+    seen: list[int] = []
+    frames = damaged.iter_frames_tolerant(lambda i, why: seen.append(i))
+    for i, _, img in frames:
+        assert (img is None) == (i == 3)
+        assert seen == ([3] if i >= 3 else [])  # reported when its turn comes, not before
+        if i == 5:
+            break
+    frames.close()
+    assert not [t for t in threading.enumerate() if t.name.startswith("tcm-frame-reader")]

@@ -35,9 +35,9 @@ from typing import ClassVar
 
 import cv2
 import numpy as np
-import scipy.fft
 
 from ...core.frames import FloatArray
+from .texture_cache import cached_arrays
 
 Vec3 = tuple[float, float, float]
 Rgb = tuple[float, float, float]
@@ -557,6 +557,8 @@ def _band_noise(
     """
     h, w = shape
     white = rng.standard_normal(shape).astype(np.float32)
+    import scipy.fft  # here: textures usually come from the cache (texture_cache.py)
+
     spec = scipy.fft.rfft2(white)
     ky = np.fft.fftfreq(h).astype(np.float32)[:, None]
     kx = np.fft.rfftfreq(w).astype(np.float32)[None, :]
@@ -613,9 +615,7 @@ MACRO_SCALE = 0.5 / 255.0  # albedo per DN of the macro texture (albedos stay be
 DETAIL_LEVELS = 7
 
 
-@lru_cache(maxsize=4)
-def ground_textures(ground: Ground) -> GroundTextures:
-    """Build (once per :class:`Ground`) the texture images the renderer samples."""
+def _build_ground_textures(ground: Ground) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(np.random.SeedSequence([104729, ground.seed]))
     macro0 = _macro_texture(ground, rng)
     blurred = cv2.GaussianBlur(macro0, (0, 0), 1.6)
@@ -624,6 +624,21 @@ def ground_textures(ground: Ground) -> GroundTextures:
     )
     detail = _detail_texture(ground, rng)
     atlas, offsets = _mip_atlas(detail, DETAIL_LEVELS)
+    return {"macro0": macro0, "macro1": macro1, "atlas": atlas, "offsets": offsets}
+
+
+@lru_cache(maxsize=4)
+def ground_textures(ground: Ground) -> GroundTextures:
+    """Build (once per :class:`Ground`, and kept on disk between runs:
+    :mod:`.texture_cache`) the texture images the renderer samples."""
+    t = cached_arrays(
+        "ground",
+        ground,
+        __file__,
+        ("macro0", "macro1", "atlas", "offsets"),
+        lambda: _build_ground_textures(ground),
+    )
+    macro0, macro1, atlas, offsets = t["macro0"], t["macro1"], t["atlas"], t["offsets"]
     half = ground.extent_m / 2.0
     return GroundTextures(
         macro_levels=(macro0, macro1),
@@ -790,6 +805,14 @@ class SkyTextures:
 
 @lru_cache(maxsize=4)
 def sky_textures(sky: Sky) -> SkyTextures:
+    """The sky's cloud layer and hill profile (once per :class:`Sky`, kept on disk)."""
+    t = cached_arrays(
+        "sky", sky, __file__, ("cloud", "az", "hill"), lambda: _build_sky_textures(sky)
+    )
+    return SkyTextures(t["cloud"], 25.0, t["az"], t["hill"])
+
+
+def _build_sky_textures(sky: Sky) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(np.random.SeedSequence([15485863, sky.seed]))
     size = 512
     base = _band_noise((size, size), rng, 16.0, 300.0, slope=1.4)
@@ -803,4 +826,4 @@ def sky_textures(sky: Sky) -> SkyTextures:
     prof = _band_noise((1, n_az), rng, 8.0, 400.0, slope=1.0)[0]
     prof = np.append(prof, prof[0])
     hill = np.radians(sky.hill_height_deg) * (0.55 + 0.45 * np.tanh(0.8 * prof))
-    return SkyTextures(cloud, 25.0, az, hill.astype(np.float64))
+    return {"cloud": cloud, "az": az, "hill": hill.astype(np.float64)}

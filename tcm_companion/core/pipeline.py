@@ -276,15 +276,17 @@ class Pipeline:
         timings["bsm"] = self._bsm_s * 1e3
         timings["classify"] = (t4 - t3 - self._bsm_s) * 1e3
         timings["total"] = (t4 - t_start) * 1e3
-        default_ref = self._frame_near(
-            frame_time_us - round(self.config.classifier.interval_s * 1e6)
-        )
+        # The translation reported: the default interval's, ending at this frame (with a
+        # fit window, at the frame half a window back, where the pairs end).
+        end = self._frame_near(frame_time_us - self._fit_half_us) if self._fit_half_us else None
+        end_index, end_us = (index, frame_time_us) if end is None else (end.index, end.t_us)
+        default_ref = self._frame_near(end_us - round(self.config.classifier.interval_s * 1e6))
         return FrameResult(
             index,
             frame_time_us,
             tuple(objects),
             R_ned_from_cam is not None,
-            cache.get((default_ref.index, index)) if default_ref is not None else None,
+            cache.get((default_ref.index, end_index)) if default_ref is not None else None,
             timings,
         )
 

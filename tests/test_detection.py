@@ -107,12 +107,15 @@ def render(
     blur_px: float = 0.0,
     seed: int = 0,
     background: Background = field_background,
+    mix_exponent: float = 1.0,
 ) -> np.ndarray:
     """BGR uint8 frame of shaded spheres, anti-aliased by supersampling, in camera FRD.
 
     Each sphere is Lambertian (``ambient`` + diffuse towards ``light_cam``, the
     direction to the light) with an optional Phong highlight; samples are averaged on
-    the 8-bit scale like a simple renderer's anti-aliasing.
+    the 8-bit scale like a simple renderer's anti-aliasing (``mix_exponent`` 1), or in
+    linear light for a display gamma of ``mix_exponent`` (2: as the simulator and a
+    camera's optics mix an edge).
     """
     img = background(cam.bearing_map_cam)
     light = normalize(np.asarray(light_cam, dtype=np.float64))
@@ -144,7 +147,9 @@ def render(
             )
         samples = np.where(hit[..., None], np.clip(colour, 0.0, 255.0), background(d))
         samples = np.where(ok[..., None], samples, 0.0)
-        block = samples.reshape(y1 - y0, supersample, x1 - x0, supersample, 3).mean(axis=(1, 3))
+        lin = (samples / 255.0) ** mix_exponent
+        block = lin.reshape(y1 - y0, supersample, x1 - x0, supersample, 3).mean(axis=(1, 3))
+        block = 255.0 * block ** (1.0 / mix_exponent)
         cols = np.arange(x0, x1) % cam.width
         img[y0:y1, cols] = block
     if blur_px > 0.0:
@@ -429,6 +434,65 @@ def test_ball_next_to_dirt_or_shadow_keeps_its_size(rgb: tuple[int, int, int]) -
     dets = detector("pinhole").detect(render(cam, [ball], background=scene))
     assert len(dets) == 1
     assert abs(pixel_errors(cam, dets[0], ball)[0]) < 0.03
+
+
+HEDGE_BGR = np.array([22.0, 48.0, 26.0])
+# Four places for a ball in front of a background, (azimuth, elevation) degrees.
+PLACES = [(-20.0, -15.0), (25.0, -25.0), (10.0, 5.0), (-35.0, -5.0)]
+
+
+def hedge_background(bearing_cam: np.ndarray) -> np.ndarray:
+    """A dark hedge: dark green leaves and darker gaps about a degree apart, so that on
+    the 360×220 panorama the background changes from pixel to pixel (BGR float)."""
+    b = np.nan_to_num(bearing_cam)
+    az = np.degrees(np.arctan2(b[..., 1], b[..., 0]))
+    el = np.degrees(np.arcsin(np.clip(-b[..., 2], -1.0, 1.0)))
+    tex = np.sin(2.7 * az + 1.3 * np.sin(1.9 * el)) * np.sin(3.1 * el + 0.7 * np.sin(2.3 * az))
+    leaf = 0.55 + 0.45 * tex + 0.25 * np.sin(0.9 * az - 1.7 * el)
+    img = HEDGE_BGR * np.clip(leaf, 0.05, 1.6)[..., None]
+    return np.where(np.isfinite(bearing_cam[..., :1]), img, 0.0)
+
+
+def sky_background(bearing_cam: np.ndarray) -> np.ndarray:
+    """Bright sky everywhere, brighter towards the zenith (BGR float)."""
+    up = -np.nan_to_num(bearing_cam)[..., 2]
+    img = SKY_BGR - 35.0 * up[..., None]
+    return np.where(np.isfinite(bearing_cam[..., :1]), img, 0.0)
+
+
+def test_ball_on_a_dark_textured_hedge_measures_as_on_the_sky() -> None:
+    """Issue 14 §3: the size does not depend on what is behind the ball. On a dark,
+    textured hedge the rim pixels darker than the local background mean are not object
+    (version 1's chroma-only unmixing read them as object: +2.7 to +5.1% here)."""
+    cam = CAMERAS["equirectangular"]
+    on_hedge, on_sky = [], []
+    for seed, (az, el) in enumerate(PLACES):
+        ball = ball_at(az, el, 5.0)
+        for background, errs in ((hedge_background, on_hedge), (sky_background, on_sky)):
+            dets = detector("equirectangular").detect(
+                render(cam, [ball], background=background, seed=seed)
+            )
+            assert len(dets) == 1
+            errs.append(pixel_errors(cam, dets[0], ball)[0])
+    assert max(abs(e) for e in on_sky) < 0.01
+    assert max(abs(e) for e in on_hedge) < 0.025
+    assert abs(float(np.mean(on_hedge)) - float(np.mean(on_sky))) < 0.015
+
+
+def test_edge_mixed_in_linear_light_is_measured_with_the_light_exponent() -> None:
+    """A dark ball on a bright sky whose rim was mixed in linear light (display gamma
+    2, as the simulator renders): unmixed in code values it reads too small, by about
+    a fixed fraction of a pixel (so most for small balls); ``light_exponent=2`` unmixes
+    in the light the rim was mixed in."""
+    cam = CAMERAS["equirectangular"]
+    code, light = Detector(cam), Detector(cam, light_exponent=2.0)
+    for seed, (az, el) in enumerate(PLACES):
+        ball = ball_at(az, el, 3.0)
+        img = render(cam, [ball], background=sky_background, seed=seed, mix_exponent=2.0)
+        assert pixel_errors(cam, code.detect(img)[0], ball)[0] < -0.025
+        assert abs(pixel_errors(cam, light.detect(img)[0], ball)[0]) < 0.01
+    with pytest.raises(ValueError, match="light_exponent"):
+        Detector(cam, light_exponent=0.0)
 
 
 @settings(max_examples=60, deadline=None)

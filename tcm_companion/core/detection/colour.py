@@ -18,16 +18,24 @@ a red ball by colour and grows regions from seeds; here that is, for each config
    blob across the left and right edges is one object.
 3. **Measurement through the camera model** — pixels within a couple of pixels of the
    blob's edge get a fractional membership by unmixing their colour into the local
-   object colour (just inside) and the local background colour (just outside); the band
-   is re-centred once on the measured edge if the growth stopped short of it. The blob's
-   solid angle is the membership-weighted sum of per-pixel solid angles, its bearing the
-   normalised weighted sum of pixel-centre bearings. A sphere's image is a spherical
+   object colour (just inside) and the local background colour (just outside), from
+   chroma and brightness together: the object's share (true on any background
+   brightness) and one minus the background's (true however the object is shaded),
+   each weighted by how much its side's colour varies locally, so a textured dark
+   hedge does not count its dark gaps as object; the band is re-centred once on the
+   measured edge if the growth stopped short of it. The blob's solid angle is the
+   membership-weighted sum of per-pixel solid angles, its bearing the normalised
+   weighted sum of pixel-centre bearings. A sphere's image is a spherical
    cap, so ``Ω = 2π(1 - cos α)`` gives its angular radius exactly, on any lens, off
    axis or not (for other shapes, the radius of the cap of equal solid angle).
 
 Known limits (red ball): a specular highlight *on the limb* reads as background (a few
 tenths of a pixel of radius); a reddish-brown patch (hue ≈ 12°, S ≈ 0.63) touching the
 ball is grown into it; a ball lit only by a dim sky (V < 0.15 everywhere) has no seeds.
+The rim is unmixed in code values (``light_exponent`` 1): an edge mixed in linear light
+(a camera's optics, this project's simulator) reads a dark object on a bright sky a
+fixed fraction of a pixel too small (−2 to −5 % of the radius at 5° to 2°), a bright one
+on a dark background too large.
 Grey, white and black objects have no hue and cannot be targets.
 
 Pure: numpy and OpenCV over an image passed in; no IO, no clock.
@@ -49,9 +57,16 @@ from ..camera import CameraModel
 from .base import Detection, DetectorBackend, angular_radius_from_solid_angle, wraps_around
 from .settings import ColourTarget, DetectionConfig, hue_plan
 
-# Pairs of colour rows whose dot products the unmixing needs: p·b, p·k, b·k, b·b, k·k.
-_GRAM_A = np.array([0, 1, 2, 0, 1, 2, 3, 4, 5, 3, 4, 5, 6, 7, 8])
-_GRAM_B = np.array([3, 4, 5, 6, 7, 8, 6, 7, 8, 3, 4, 5, 6, 7, 8])
+# Rim unmixing (see ``ColourDetector._rim_fractions``). Sensor noise of one code value
+# (0..255 units), a floor under the noise of both shares of a pixel:
+_NOISE_DN = 3.0
+# Least relative spread of the object's brightness around its local estimate: shading
+# changes between the rim and the samples two pixels farther in, and a JPEG smears
+# colour across the edge (0.1-1.0 measured, docs/decisions.md §2; 0.5 in the middle of
+# the flat optimum on the simulator and the independent examples):
+_SHADING_SPREAD = 0.5
+# Fixed-point iterations of the combined estimate (its weights depend on the fraction).
+_COMBINE_PASSES = 3
 
 _DEFAULT_CONFIG = DetectionConfig()
 
@@ -139,10 +154,23 @@ class ColourDetector(DetectorBackend):
 
     backend = "colour"
 
-    def __init__(self, camera: CameraModel, config: DetectionConfig = _DEFAULT_CONFIG) -> None:
+    def __init__(
+        self,
+        camera: CameraModel,
+        config: DetectionConfig = _DEFAULT_CONFIG,
+        light_exponent: float = 1.0,
+    ) -> None:
+        """``light_exponent``: the rim is unmixed in code values raised to this power,
+        ``255·(c/255)^γ``. 1 (the default): code values, which fits images anti-aliased
+        after their gamma (the independent examples); 2: linear light for a display gamma
+        of 2, which is how this project's simulator and a real camera's optics mix an
+        edge (docs/decisions.md §2 measures both)."""
         super().__init__(camera)
         self.config = config
         cfg = config
+        if not light_exponent > 0.0:
+            raise ValueError(f"light_exponent must be positive, got {light_exponent!r}")
+        self._light_exponent = float(light_exponent)
         self._w, self._h = camera.width, camera.height
         self._wrap = wraps_around(camera)
         self.targets = [_Target(t) for t in cfg.colour_targets]
@@ -442,11 +470,25 @@ class ColourDetector(DetectorBackend):
     ) -> np.ndarray:
         """Fraction of each rim pixel ``(ys, xs)`` that the object covers.
 
-        The pixel colour is unmixed into object and background with both colours
-        estimated locally (Gaussian-weighted over pixels farther in and farther out),
-        so an anti-aliased, blurred or JPEG-smeared edge contributes the fraction it
-        covers and the blob's sum is sub-pixel. ``raw`` is the grown blob, ``mask`` the
-        filled one, ``inner`` its interior, ``near`` its dilation.
+        The pixel colour ``p`` is unmixed into the local object colour ``b`` (a
+        Gaussian-weighted mean over object pixels farther in) and the local background
+        colour ``k`` (the same over pixels farther out): ``p ≈ a·b + c·k`` in the plane
+        of the two colours. Either share gives the fraction, and each fails where the
+        other holds:
+
+        - ``1 - c`` (chroma: the object's brightness left free, only its colour's
+          direction used) is exact however the object is shaded, but reads a background
+          pixel darker than the local mean (a gap in a hedge, a shadow) as object;
+        - ``a`` (the background's brightness left free) is exact on any background
+          brightness, but reads a shaded object pixel as partly background.
+
+        So both are combined, weighted by their expected errors: ``f²·σ_b²`` for ``a``
+        and ``(1 - f)²·σ_k²`` for ``1 - c``, with ``σ_b`` and ``σ_k`` the relative
+        spreads of the object's and the background's colours around their local means
+        (from the same Gaussian weights; at least ``_SHADING_SPREAD`` for the object),
+        plus the sensor noise of each share. A smooth sky backs the chroma share, a
+        textured hedge the object's. ``raw`` is the grown blob, ``mask`` the filled one,
+        ``inner`` its interior, ``near`` its dilation.
         """
         cfg = self.config
         # The object's colour comes from saturated grown pixels (never a highlight), as
@@ -460,53 +502,101 @@ class ColourDetector(DetectorBackend):
         # The background's colour: valid pixels beyond the rim band that belong to no blob.
         outer = ((near == 0) & (valid > 0) & (grow == 0)).view(np.uint8)
 
-        # Colour × weight and weight, for the object's and the background's samples.
-        # Unmixing works on the 8-bit code values: renderers and cameras anti-alias in
-        # that space as often as in linear light, and on the example scenarios code
-        # values fit better (radius bias 0.1% against 1-5% in linear light).
-        stack = cv2.merge([cv2.copyTo(img, source), source, cv2.copyTo(img, outer), outer])
-        stack = stack.astype(np.float32)
-        blur = cv2.GaussianBlur(
-            stack, self._ksize, cfg.colour_sigma_px, borderType=cv2.BORDER_CONSTANT
-        )
-        at = blur[ys, xs]
-        if not (at[:, 3::4] > 1e-3).all():
-            # Out of reach of every sample: the mean over the whole crop instead.
-            totals = stack.reshape(-1, 8).sum(axis=0)
-            for k in (3, 7):
-                far = ~(at[:, k] > 1e-3)
-                at[far, k - 3 : k + 1] = totals[k - 3 : k + 1]
-        # Rows 0-2: the pixel; 3-5: the local object colour b; 6-8: the background k.
-        cols = np.empty((9, ys.size), np.float32)
-        cols[0:3] = img[ys, xs].T
-        cols[3:6] = at[:, 0:3].T / np.maximum(at[:, 3], 1e-6)
-        cols[6:9] = at[:, 4:7].T / np.maximum(at[:, 7], 1e-6)
-        prods = cols[_GRAM_A] * cols[_GRAM_B]
-        pb, pk, bk, bb, kk = prods[0::3] + prods[1::3] + prods[2::3]
-        bb = np.maximum(bb, 1e-6)
-        # Shading only scales the object's colour, so its chromaticity (direction b/|b| in
-        # colour space) is what is known at the rim, not its brightness (the lit limb is
-        # brighter than the pixels just inside). Orthogonally to that direction the object
-        # contributes nothing and a pixel reads (1 - f)·k⊥, k the background; with
-        # k⊥ = k - (k·b)b/|b|²: f = 1 - p·k⊥ / |k⊥|².
-        den = kk - bk * bk / bb
-        frac = 1.0 - (pk - pb * bk / bb) / np.maximum(den, 1e-6)
+        # Unmixing works on the 8-bit code values by default: renderers and cameras
+        # anti-alias in that space as often as in linear light, and on the independent
+        # examples code values fit better (radius bias 0.1% against 1-5% in linear light).
+        code = img.astype(np.float32)
+        light = code
+        if self._light_exponent != 1.0:
+            light = np.float32(255.0) * (code / np.float32(255.0)) ** np.float32(
+                self._light_exponent
+            )
+        b, b_spread2, k, k_spread2 = self._local_colours(light, source, outer, ys, xs)
+        p = light[ys, xs].astype(np.float64)
+        pb = np.einsum("ij,ij->i", p, b)
+        pk = np.einsum("ij,ij->i", p, k)
+        bk = np.einsum("ij,ij->i", b, k)
+        bb = np.maximum(np.einsum("ij,ij->i", b, b), 1e-6)
+        kk = np.maximum(np.einsum("ij,ij->i", k, k), 1e-6)
+        # |k⊥|², |b⊥|²: each colour's part orthogonal to the other.
+        k_perp2 = np.maximum(kk - bk * bk / bb, 1e-6)
+        b_perp2 = np.maximum(bb - bk * bk / kk, 1e-6)
+        det = bb * k_perp2
+        share_obj = (pb * kk - pk * bk) / det  # a
+        share_bg = (pk * bb - pb * bk) / det  # c
+        chroma = 1.0 - share_bg
+        var_obj_shading = np.maximum(b_spread2 / bb, _SHADING_SPREAD**2)
+        var_bg_texture = k_spread2 / kk
+        noise2 = _NOISE_DN**2
+        total = share_obj + share_bg
+        frac = np.where(total > 0.05, share_obj / np.maximum(total, 1e-6), 0.5)
+        frac = np.clip(frac, 0.0, 1.0)
+        for _ in range(_COMBINE_PASSES):
+            v_obj = frac * frac * var_obj_shading + noise2 / b_perp2
+            v_bg = (1.0 - frac) ** 2 * var_bg_texture + noise2 / k_perp2
+            frac = np.clip((share_obj * v_bg + chroma * v_obj) / (v_obj + v_bg), 0.0, 1.0)
+
+        # A background of the object's own hue (dark shadow, red dirt) leaves no
+        # orthogonal contrast: unmix between the two local colours,
+        # f = (p-k)·(b-k) / |b-k|², or, without any contrast at all, keep the mask. The
+        # contrast is judged in code values.
+        if light is not code:
+            bc, _, kc, _ = self._local_colours(code, source, outer, ys, xs)
+            bkc = np.einsum("ij,ij->i", bc, kc)
+            bbc = np.maximum(np.einsum("ij,ij->i", bc, bc), 1e-6)
+            kkc = np.einsum("ij,ij->i", kc, kc)
+            orth2, line2 = kkc - bkc * bkc / bbc, bbc - 2.0 * bkc + kkc
+        else:
+            orth2, line2 = kk - bk * bk / bb, bb - 2.0 * bk + kk
         contrast2 = cfg.min_unmix_contrast**2
-        weak = den < contrast2
+        weak = orth2 < contrast2
         if weak.any():
-            # A background of the object's own hue (dark shadow, red dirt) leaves no
-            # orthogonal contrast: unmix between the two local colours,
-            # f = (p-k)·(b-k) / |b-k|², or, without any contrast at all, keep the mask.
-            den2 = bb - 2.0 * bk + kk
-            frac2 = (pb - pk - bk + kk) / np.maximum(den2, 1e-6)
-            hard = mask[ys, xs].astype(np.float32)
-            frac = np.where(weak, np.where(den2 >= contrast2, frac2, hard), frac)
+            frac2 = (pb - pk - bk + kk) / np.maximum(bb - 2.0 * bk + kk, 1e-6)
+            hard = mask[ys, xs].astype(np.float64)
+            frac = np.where(weak, np.where(line2 >= contrast2, frac2, hard), frac)
         lo, hi = cfg.membership_clip
         frac = np.clip(frac, lo, hi)
         # Filled pixels (a highlight, notch or hole closed in the mask) are object by
         # topology, whatever their colour says.
         frac[filled[ys, xs] > 0] = 1.0
-        return np.asarray(frac)
+        return np.asarray(frac, dtype=np.float32)
+
+    def _local_colours(
+        self,
+        img: np.ndarray,
+        source: np.ndarray,
+        outer: np.ndarray,
+        ys: np.ndarray,
+        xs: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """At each rim pixel ``(ys, xs)`` of ``img`` (H, W, 3 float32): the
+        Gaussian-weighted mean colour of the object samples (``source``) and its spread
+        (the trace of the covariance, colour units²), and the same of the background
+        samples (``outer``); the mean over the whole crop where no sample is in reach."""
+        cfg = self.config
+        sq = np.einsum("ijk,ijk->ij", img, img)
+        stack = np.empty((*img.shape[:2], 10), np.float32)
+        for w, at0 in ((source, 0), (outer, 5)):
+            wf = w.astype(np.float32)
+            stack[..., at0 : at0 + 3] = img * wf[..., None]
+            stack[..., at0 + 3] = wf
+            stack[..., at0 + 4] = sq * wf
+        blur = cv2.GaussianBlur(
+            stack, self._ksize, cfg.colour_sigma_px, borderType=cv2.BORDER_CONSTANT
+        )
+        at = blur[ys, xs].astype(np.float64)
+        for w_at in (3, 8):
+            far = ~(at[:, w_at] > 1e-3)
+            if far.any():  # out of reach of every sample: the mean over the whole crop
+                totals = stack[..., w_at - 3 : w_at + 2].reshape(-1, 5).sum(axis=0)
+                at[far, w_at - 3 : w_at + 2] = totals
+        out: list[np.ndarray] = []
+        for w_at in (3, 8):
+            wsum = np.maximum(at[:, w_at], 1e-6)
+            mean = at[:, w_at - 3 : w_at] / wsum[:, None]
+            spread2 = np.maximum(at[:, w_at + 1] / wsum - np.einsum("ij,ij->i", mean, mean), 0.0)
+            out += [mean, spread2]
+        return out[0], out[1], out[2], out[3]
 
 
 def _u8(a: np.ndarray | cv2.typing.MatLike) -> NDArray[np.uint8]:

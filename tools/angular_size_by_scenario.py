@@ -14,9 +14,10 @@ geometry (:mod:`tcm_companion.sim.scene.truth`, the renderer's coverage):
   equal-solid-angle radius of the object's whole silhouette (``object_coverage`` times
   the camera's per-pixel solid angle; occlusion not removed, so a hidden part counts as
   an error of the measurement);
-- ``boxes`` reports half of ``√(θw·θh)`` across the box (``box_radius = "mean"``): truth
-  is the same of the silhouette's true box (:func:`~tcm_companion.sim.scene.truth.object_views`,
-  ``extent_rad``).
+- ``boxes`` reports its ``box_radius`` statistic of the angles across the box (default
+  ``"rms"``: half of ``√((θw² + θh²)/2)``, the diagonal over √2; ``"mean"``: half of
+  ``√(θw·θh)``): truth is the same statistic of the silhouette's true box
+  (:func:`~tcm_companion.sim.scene.truth.object_views`, ``extent_rad``).
 
 For a ball all of these are ``asin(r / d)``. Errors are relative, ``α_measured / α_true - 1``,
 over every matched object-frame (warm-up included): median and p90 of the absolute value,
@@ -49,9 +50,20 @@ from tcm_companion.sim.scene.export import SimulatedScenario
 from tcm_companion.sim.scene.truth import object_views
 
 
-def true_radii(sim: SimulatedScenario, frame: int) -> dict[int, tuple[float, float, float]]:
-    """Per object id: (bounding sphere, equal-solid-angle silhouette, box mean) angular
-    radius (rad) at ``frame``; NaN where the object is not in view."""
+def box_statistic(w_rad: float, h_rad: float, how: str) -> float:
+    """The angular radius ``box_radius = how`` reports for a box ``w_rad`` × ``h_rad``."""
+    if how == "mean":
+        return 0.5 * math.sqrt(w_rad * h_rad)
+    if how == "rms":
+        return 0.5 * math.sqrt((w_rad * w_rad + h_rad * h_rad) / 2.0)
+    return 0.5 * (min(w_rad, h_rad) if how == "short" else max(w_rad, h_rad))
+
+
+def true_radii(
+    sim: SimulatedScenario, frame: int, box_radius: str = "rms"
+) -> dict[int, tuple[float, float, float]]:
+    """Per object id: (bounding sphere, equal-solid-angle silhouette, the silhouette's box
+    by ``box_radius``) angular radius (rad) at ``frame``; NaN where not in view."""
     t = float(sim.frame_times_s[frame])
     pos, R = sim.vehicle_pose(frame)
     omega = sim.camera.solid_angle_map_sr
@@ -66,13 +78,13 @@ def true_radii(sim: SimulatedScenario, frame: int) -> dict[int, tuple[float, flo
         area = angular_radius_from_solid_angle(solid) if solid > 0 else math.nan
         box = math.nan
         if view.extent_rad is not None:
-            box = 0.5 * math.sqrt(view.extent_rad[0] * view.extent_rad[1])
+            box = box_statistic(view.extent_rad[0], view.extent_rad[1], box_radius)
         out[obj.object_id] = (sphere, area, box)
     return out
 
 
 def radius_errors(
-    sim: SimulatedScenario, records: list[ObjectFrame]
+    sim: SimulatedScenario, records: list[ObjectFrame], box_radius: str = "rms"
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Relative errors of the matched records' measured radius against the bounding
     sphere, the equal-solid-angle silhouette and the silhouette's box."""
@@ -83,7 +95,7 @@ def radius_errors(
             continue
         truth = cache.get(r.frame)
         if truth is None:
-            truth = cache[r.frame] = true_radii(sim, r.frame)
+            truth = cache[r.frame] = true_radii(sim, r.frame, box_radius)
         sphere, area, box = truth[r.object_id]
         measured = (1.0 + r.radius_error_rel) * sphere
         errs.append((measured / sphere - 1.0, measured / area - 1.0, measured / box - 1.0))
@@ -155,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         ev = evaluate_scenario(sim, config, with_bsm=False)
         pooled.extend(ev.records)
         tcm = {s.method: s for s in summarize(ev.records, cls)}.get("tcm")
-        sphere, area, box = radius_errors(sim, ev.records)
+        sphere, area, box = radius_errors(sim, ev.records, config.pipeline.detection.box_radius)
         med, p90, signed = _stats(area if args.backend == "colour" else box)
         sph_med = _stats(sphere)[0]
         acc = _pct(tcm.accuracy) if tcm else "—"

@@ -143,26 +143,15 @@ def _features(
     p0 = p0.astype(np.float32).reshape(-1, 1, 2)
     guess = (p0 + shift_px.astype(np.float32).reshape(1, 1, 2)).astype(np.float32)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(
-        g0,
-        g1,
-        p0,
-        guess.copy(),
-        winSize=(9, 9),
-        maxLevel=2,
-        criteria=crit,
-        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-    )
-    back, st2, _ = cv2.calcOpticalFlowPyrLK(
-        g1,
-        g0,
-        p1,
-        p0.copy(),
-        winSize=(9, 9),
-        maxLevel=2,
-        criteria=crit,
-        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-    )
+
+    def lk(a: np.ndarray, b: np.ndarray, pts: np.ndarray, start: np.ndarray) -> tuple:
+        return cv2.calcOpticalFlowPyrLK(
+            a, b, pts, start.copy(), winSize=(9, 9), maxLevel=2, criteria=crit,
+            flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+        )  # fmt: skip
+
+    p1, st, _ = lk(g0, g1, p0, guess)
+    back, st2, _ = lk(g1, g0, p1, p0)
     ok = (
         (st.ravel() == 1)
         & (st2.ravel() == 1)

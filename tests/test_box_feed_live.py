@@ -28,6 +28,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tcm_companion.bench.daemon import stop_processes
+
 ROOT = Path(__file__).resolve().parents[1]
 FEEDER = ROOT / "tools" / "box_feeder_example.py"
 
@@ -173,13 +175,7 @@ def test_a_feeder_process_feeds_boxes_to_a_running_daemon(tmp_path: Path) -> Non
         daemon.send_signal(signal.SIGTERM)
         out, err = daemon.communicate(timeout=60)
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+        stop_processes(procs, grace_s=10.0)
         status.sock.close()
     assert daemon.returncode == 0, f"{out}\n{err}"
     summary = json.loads(summary_file.read_text())

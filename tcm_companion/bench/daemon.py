@@ -26,7 +26,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -139,6 +139,19 @@ class CpuQuota:
                 return
             except OSError:
                 time.sleep(0.1)
+
+
+def stop_processes(procs: Iterable[subprocess.Popen[Any]], grace_s: float) -> None:
+    """SIGTERM each process still running, and SIGKILL it if it has not exited within
+    ``grace_s`` (the clean stop a service gets, then the end)."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(grace_s)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
 
 
 def write_frames(directory: Path, scenario: str, seconds: float) -> int:
@@ -274,13 +287,7 @@ def _run_daemon_bench(
             time.sleep(1.0)
         _stdout, stderr = daemon.communicate()
     finally:
-        for p in (daemon, mock):
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(5)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+        stop_processes((daemon, mock), grace_s=5.0)
     if daemon.returncode != 0 or not summary_file.exists():
         raise RuntimeError(f"daemon failed (exit {daemon.returncode}):\n{stderr[-2000:]}")
     summary = json.loads(summary_file.read_text())

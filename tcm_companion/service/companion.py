@@ -454,7 +454,6 @@ class Companion:
         self._frame_times_mono_us: deque[int] = deque(maxlen=64)
         self._last_translation: TranslationEstimate | None = None
         self._last_drop_mono_us: int | None = None
-        self._drops_mono_us: deque[int] = deque(maxlen=1024)  # the recent drops' times
         self._overloaded = False  # the condition announced by the last health check
         self._next_health_mono_us = now_mono_us + config.health_interval_us
         self.last_override = ""  # why the last processed frame's objects were made unknown
@@ -761,13 +760,16 @@ class Companion:
     def _drop(self, now_mono_us: int) -> None:
         self.stats.frames_dropped += 1
         self._last_drop_mono_us = now_mono_us
-        self._drops_mono_us.append(now_mono_us)
+
+    def _dropped_recently(self, now_mono_us: int) -> bool:
+        """A frame was dropped within :data:`OVERLOAD_WINDOW_US`: the pipeline is behind."""
+        last = self._last_drop_mono_us
+        return last is not None and now_mono_us - last < OVERLOAD_WINDOW_US
 
     def overload_problem(self, now_mono_us: int) -> str:
         """``overloaded: processing 14.2 of 25 fps`` while frames were dropped (superseded
         before the pipeline got to them) within :data:`OVERLOAD_WINDOW_US`; "" otherwise."""
-        recent = sum(1 for t in self._drops_mono_us if now_mono_us - t < OVERLOAD_WINDOW_US)
-        if not recent:
+        if not self._dropped_recently(now_mono_us):
             return ""
         return (
             f"overloaded: processing {self.frame_rate_hz(now_mono_us):.1f}"
@@ -1048,10 +1050,7 @@ class Companion:
         ts = self.endpoint.timesync
         if not ts.fresh(now_mono_us):  # one rule for "fresh": timesync.FRESH_US
             flags |= d.TCM_HEALTH_TIMESYNC_LOST
-        if (
-            self._last_drop_mono_us is not None
-            and now_mono_us - self._last_drop_mono_us < OVERLOAD_WINDOW_US
-        ):
+        if self._dropped_recently(now_mono_us):
             flags |= d.TCM_HEALTH_OVERLOADED
         if self.log_state == d.TCM_LOG_STATE_FAULT:
             flags |= d.TCM_HEALTH_LOG_FAULT

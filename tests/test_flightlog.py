@@ -820,3 +820,19 @@ def test_every_frame_is_logged_in_each_format(tmp_path: Path, sim_frames: list[n
         assert s.frames_logged == len(sim_frames)
         counts = Counter(r.topic for r in read_log(tmp_path / fmt))
         assert counts["/camera0/image"] == len(sim_frames)
+
+
+def test_a_deterministic_writer_sleeps_while_its_queue_is_empty(tmp_path: Path) -> None:
+    """The deterministic writer (``sitl --clock virtual``) flushes by the records' time, so
+    its thread has no flush deadline of its own to wake for: once one interval had passed
+    it polled the empty queue with a zero timeout, holding the GIL, and a 60 s virtual SITL
+    ran 4-15x slower with ``--log`` than without. CPU time of an idle thread does not
+    depend on the machine's load, so the bound is safe on a busy machine."""
+    w, _ = writer_with_events(tmp_path, deterministic=True)
+    try:
+        w.log_json(topics.HEALTH, 1_000_000, {"ok": True})
+        assert w.wait_drained(timeout_s=10.0)
+        time.sleep(0.6)  # twelve flush intervals with nothing to write
+    finally:
+        w.stop()
+    assert w.stats.writer_cpu_s < 0.2, w.stats.writer_cpu_s

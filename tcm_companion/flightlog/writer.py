@@ -637,9 +637,10 @@ class FlightLogWriter:
                 self._process(item)
             now = time.monotonic()
             self._housekeeping(now)
-            if now >= next_flush and not self.deterministic:
-                self._flush(now)
-                next_flush = now + interval
+            if now >= next_flush:
+                if not self.deterministic:  # there the records' time flushes
+                    self._flush(now)
+                next_flush = now + interval  # either way: a past deadline would spin
             self._counts.writer_cpu_s = time.thread_time()
         while time.monotonic() < self._drain_deadline:
             try:

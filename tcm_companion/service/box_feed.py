@@ -21,8 +21,8 @@ object (docs/box-feed.md has the protocol)::
 This module is the pure part (:func:`parse_box_datagram`, no clock, no socket: tests
 call it directly) and the thin asyncio edge (:class:`BoxFeedProtocol`,
 :func:`open_box_feed`). What a parsed message does — the frame waiting for its boxes,
-late and future messages, the feed's health — is the
-:class:`~tcm_companion.service.companion.Companion`'s (:meth:`~.Companion.on_boxes`).
+late and future messages, the feed's health — is
+:class:`~tcm_companion.service.live_boxes.LiveBoxes`' (the Companion's ``boxes``).
 """
 
 from __future__ import annotations

@@ -56,6 +56,10 @@ Policies that live here:
 - **A failing frame is not a failing daemon.** An exception in the pipeline is counted,
   reported (STATUSTEXT) and the frame yields no result; after
   ``rebuild_after_errors`` consecutive failures the camera's pipeline is rebuilt.
+- **The live box feed** (``[daemon] box_feed``, ``box_tracking``; docs/box-feed.md) is
+  its own object, :class:`~.live_boxes.LiveBoxes`: a frame of a fed camera waits for its
+  boxes (bounded by ``box_wait_max_us``); the Companion asks it when a slot is due and
+  whether a waiting frame stays when a newer one arrives.
 - **Parameter changes** from the ground station that touch the pipeline rebuild it with
   the new configuration (the shared telemetry is kept; objects warm up again).
 - **Nothing is sent before the autopilot's boot clock is known** (TIMESYNC or the
@@ -79,7 +83,6 @@ import numpy as np
 
 from ..core.camera import CameraModel
 from ..core.classify import unknown
-from ..core.detection import Box, BoxesDetector
 from ..core.egomotion import TranslationEstimate
 from ..core.pipeline import FrameResult, ObjectResult, Pipeline, PipelineConfig
 from ..core.telemetry import AttitudeSample, ClockSync, PositionSample, TelemetryBuffer
@@ -98,8 +101,9 @@ from ..mavlink.endpoint import (
 )
 from ..mavlink.params import config_with_params
 from .box_feed import INPUT_NAME as BOX_FEED
-from .box_feed import BoxFeedError, box_in_image, parse_box_datagram, parse_feed_url
+from .box_feed import parse_feed_url
 from .inputs import Inputs, InputSpec
+from .live_boxes import MAX_FRAMES_WAITING_FOR_BOXES, LiveBoxes
 
 log = logging.getLogger(__name__)
 
@@ -112,15 +116,6 @@ _EGO_SOURCE = {
 
 #: A camera's expected frame rate when the driver does not give one (Hz).
 DEFAULT_CAMERA_HZ = 25.0
-#: Boxes stamped more than this after the time they arrive are for a frame not yet
-#: captured: a feeder on another clock (counted ``future``, not used).
-BOX_FUTURE_SLACK_US = 20_000
-#: At most this many frames of a camera wait for their boxes at once (the oldest is
-#: dropped beyond); the wait itself is bounded by ``box_wait_max_us``.
-MAX_FRAMES_WAITING_FOR_BOXES = 16
-#: The box feed's counters that are messages refused or not used (reported in a
-#: STATUSTEXT when they grow; docs/box-feed.md).
-BOX_FEED_BAD = ("malformed", "unknown camera", "late", "future", "boxes refused")
 #: Frames dropped within this long make the pipeline "overloaded" (health flag, problem).
 OVERLOAD_WINDOW_US = 2_000_000
 
@@ -431,25 +426,14 @@ class Companion:
         )
         # The live box feed: one input for every camera's boxes, judged alive only (a
         # detector may run at any rate).
-        self.box_feed = bool(config.box_feed) or config.box_tracking
-        if config.box_tracking and not 0 <= config.box_tracking_camera < len(cameras):
-            raise ValueError(
-                f"box_tracking_camera {config.box_tracking_camera} is not a camera"
-                f" (0..{len(cameras) - 1})"
-            )
-        if self.box_feed:
-            for c in self.cameras:
-                if not isinstance(c.pipeline.detector, BoxesDetector):
-                    raise ValueError('a box feed needs [detection] backend = "boxes"')
+        LiveBoxes.check(config, self.cameras)
+        if config.box_feed or config.box_tracking:
             specs.append(
                 InputSpec(BOX_FEED, max(rates), config.box_feed_timeout_us, min_rate_fraction=0.0)
             )
-        self._box_feed_last_mono_us: int | None = None  # the newest well-formed message
-        self._newest_capture_mono_us: int | None = None  # of any frame delivered
-        self._box_feed_bad_reported = 0
-        self._box_feed_logged_mono_us: int | None = None
         self.inputs = Inputs(specs, now_mono_us)
         self.stats = CompanionStats()
+        self.boxes = LiveBoxes(config, self.cameras, self.stats.box_feed, self.inputs, endpoint)
         self.latencies_ms: deque[float] = deque(maxlen=config.latency_window)
         self._frame_times_mono_us: deque[int] = deque(maxlen=64)
         self._last_translation: TranslationEstimate | None = None
@@ -476,125 +460,33 @@ class Companion:
         """
         cam = self.cameras[camera_id]
         self.inputs.update(cam.name, now_mono_us, True)
-        newest = self._newest_capture_mono_us
-        self._newest_capture_mono_us = (
-            int(capture_mono_us) if newest is None else max(newest, int(capture_mono_us))
-        )
+        self.boxes.frame_delivered(capture_mono_us)
         # An older frame still here is stale: never queue it ... unless it still waits
         # for its boxes (the live feed's detector takes its time; bounded in time by
         # box_wait_max_us and in number).
-        keep = [s for s in cam.pending if self._held_for_boxes(s, now_mono_us)]
+        keep = [
+            s
+            for s in cam.pending
+            if self.boxes.holds(s.waited_for_boxes, s.capture_mono_us, now_mono_us)
+        ]
         keep = keep[-(MAX_FRAMES_WAITING_FOR_BOXES - 1) :]
         for _ in range(len(cam.pending) - len(keep)):
             self._drop(now_mono_us)
         # A frame the attitude does not cover yet waits (bounded) for the next sample.
         waits = self.frame_deadline_us(camera_id, capture_mono_us) is not None
         slot = _Slot(image, int(capture_mono_us), int(now_mono_us), waits)
-        slot.waited_for_boxes = self.box_deadline_us(camera_id, slot.capture_mono_us) is not None
+        slot.waited_for_boxes = self.boxes.deadline_us(camera_id, slot.capture_mono_us) is not None
         cam.pending = [*keep, slot]
 
+    @property
+    def box_feed(self) -> bool:
+        """Whether a live box feed is configured (``[daemon] box_feed`` or ``box_tracking``)."""
+        return self.boxes.enabled
+
     def on_box_datagram(self, data: bytes, now_mono_us: int) -> str:
-        """A datagram of the live box feed (``tcm-boxes/1``, :mod:`.box_feed`) arrived at
-        ``now_mono_us``. Returns what became of it: ``"accepted"``, or the counter it
-        went to (``"malformed"``, ``"unknown camera"``, ``"late"``, ``"future"``)."""
-        st = self.stats.box_feed
-        st["datagrams"] += 1
-        try:
-            msg = parse_box_datagram(
-                data, [c.model for c in self.cameras], [c.name for c in self.cameras]
-            )
-        except BoxFeedError as exc:
-            st[exc.kind] += 1
-            self._box_feed_warn(f"{exc.kind} datagram ({exc})", now_mono_us)
-            return exc.kind
-        if msg.refused:
-            st["boxes refused"] += msg.refused
-            self._box_feed_warn(
-                f"{msg.refused} box(es) outside the image or empty, refused", now_mono_us
-            )
-        return self.on_boxes(msg.camera_id, msg.capture_mono_us, msg.boxes, now_mono_us)
-
-    def on_tracking_image(self, ev: TrackingImageStatus, now_mono_us: int) -> str:
-        """A tracking camera's CAMERA_TRACKING_IMAGE_STATUS as the boxes of camera
-        ``box_tracking_camera``: its rectangle (normalised 0..1, scaled to the image),
-        labelled ``tracked``, for the frame captured ``box_tracking_latency_us`` before it
-        arrived (the message has no time of its own). Not tracking, or tracking a point (no
-        size): no boxes in that frame. What became of it, as :meth:`on_boxes` says, or
-        ``"malformed"`` (a rectangle with NaN corners)."""
-        st = self.stats.box_feed
-        st["tracking messages"] += 1
-        camera_id = self.config.box_tracking_camera
-        model = self.cameras[camera_id].model
-        boxes: list[Box] = []
-        active = ev.tracking_status & d.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
-        if active and ev.tracking_mode == d.CAMERA_TRACKING_MODE_RECTANGLE:
-            corners = (ev.rec_top_x, ev.rec_top_y, ev.rec_bottom_x, ev.rec_bottom_y)
-            if not all(math.isfinite(c) for c in corners):
-                st["malformed"] += 1
-                self._box_feed_warn("tracking rectangle with NaN corners", now_mono_us)
-                return "malformed"
-            w, h = model.width, model.height
-            box = Box(
-                corners[0] * w, corners[1] * h, corners[2] * w, corners[3] * h, 1.0, "tracked"
-            )
-            if box_in_image(box, model) is None:
-                st["boxes refused"] += 1
-                self._box_feed_warn("tracking rectangle outside the image or empty", now_mono_us)
-            else:
-                boxes.append(box)
-        elif active:
-            st["tracking without rectangle"] += 1
-        capture = ev.recv_us - self.config.box_tracking_latency_us
-        return self.on_boxes(camera_id, capture, boxes, now_mono_us)
-
-    def on_boxes(
-        self, camera_id: int, capture_mono_us: int, boxes: Sequence[Box], now_mono_us: int
-    ) -> str:
-        """Camera ``camera_id``'s frame captured at ``capture_mono_us`` shows ``boxes``
-        (all of them; none: nothing in it), said at ``now_mono_us``. A frame waiting for
-        them is processed at the next :meth:`process_due`. Boxes for a frame already
-        processed (``"late"``) or not yet captured (``"future"``) are counted, not used;
-        otherwise ``"accepted"``. Every such message keeps the feed alive."""
-        st = self.stats.box_feed
-        cam = self.cameras[camera_id]
-        detector = cam.pipeline.detector
-        if not self.box_feed or not isinstance(detector, BoxesDetector):
-            st["unused"] += 1  # no feed configured: nobody expects them
-            return "unused"
-        self.inputs.update(BOX_FEED, now_mono_us, True)
-        self._box_feed_last_mono_us = now_mono_us
-        t = int(capture_mono_us)
-        if t > now_mono_us + BOX_FUTURE_SLACK_US:
-            st["future"] += 1
-            self._box_feed_warn(
-                f"boxes for a frame {(t - now_mono_us) / 1e3:.0f} ms in the future (clock?)",
-                now_mono_us,
-            )
-            return "future"
-        # Late: for the frame processed last or an older one (that frame went on without
-        # them). Boxes stamped a little after it may be the next frame's: they are
-        # pushed, and if no frame takes them the detector counts them (``unmatched``).
-        last = cam.last_processed_capture_mono_us
-        if last is not None and t <= last:
-            st["late"] += 1
-            self._box_feed_warn(
-                f"boxes {(now_mono_us - t) / 1e3:.0f} ms after capture came for a frame"
-                " already processed (late)",
-                now_mono_us,
-            )
-            return "late"
-        detector.push(t, boxes)
-        st["accepted"] += 1
-        st["boxes"] += len(boxes)
-        return "accepted"
-
-    def _box_feed_warn(self, text: str, now_mono_us: int) -> None:
-        """Log a problem of the feed (at most one record per 10 s; the counters and the
-        once-a-second STATUSTEXT carry the rest)."""
-        last = self._box_feed_logged_mono_us
-        if last is None or now_mono_us - last >= 10_000_000:
-            self._box_feed_logged_mono_us = now_mono_us
-            log.warning("box feed: %s", text)
+        """A datagram of the live box feed (``tcm-boxes/1``) arrived at ``now_mono_us``:
+        :meth:`.LiveBoxes.on_datagram`."""
+        return self.boxes.on_datagram(data, now_mono_us)
 
     def receive_data(self, data: bytes, now_mono_us: int) -> list[Output]:
         """Bytes from the autopilot link (any chunking)."""
@@ -630,7 +522,7 @@ class Companion:
                 self.stats.faults["autopilot reboot"] += 1
             elif isinstance(ev, TrackingImageStatus):
                 if self.config.box_tracking:
-                    self.on_tracking_image(ev, now_mono_us)
+                    self.boxes.on_tracking_image(ev, now_mono_us)
                 else:
                     self.stats.box_feed["tracking ignored"] += 1
         return out
@@ -724,37 +616,10 @@ class Companion:
             return None
         return capture_mono_us + self.config.attitude_wait_max_us
 
-    def box_deadline_us(self, camera_id: int, capture_mono_us: int) -> int | None:
-        """Until when a frame of ``camera_id`` captured at ``capture_mono_us`` waits for
-        its boxes: ``None`` (it does not) without a live feed, when boxes for it or a
-        later frame have arrived (waiting cannot change them), or when the feed had sent
-        nothing for ``box_feed_timeout_us`` before the newest frame delivered (of any
-        camera: so that an older frame never waits when a newer one would not);
-        otherwise until ``box_wait_max_us`` after its capture."""
-        if not self.box_feed:
-            return None
-        detector = self.cameras[camera_id].pipeline.detector
-        if not isinstance(detector, BoxesDetector) or detector.ready(capture_mono_us):
-            return None
-        last = self._box_feed_last_mono_us
-        newest = max(capture_mono_us, self._newest_capture_mono_us or capture_mono_us)
-        if last is None or newest - last > self.config.box_feed_timeout_us:
-            return None  # nobody is feeding: waiting would only add latency
-        return capture_mono_us + self.config.box_wait_max_us
-
-    def _held_for_boxes(self, slot: _Slot, now_mono_us: int) -> bool:
-        """Whether a newer frame leaves ``slot`` in place: it arrived waiting for its
-        boxes and its bounded wait is not over (its boxes may have come meanwhile, and it
-        is processed next)."""
-        return (
-            slot.waited_for_boxes
-            and slot.capture_mono_us + self.config.box_wait_max_us > now_mono_us
-        )
-
     def _slot_due_us(self, cam: _Camera, slot: _Slot) -> int:
         deadline = self.frame_deadline_us(0, slot.capture_mono_us)
         due = slot.arrival_mono_us if deadline is None else deadline
-        boxes = self.box_deadline_us(cam.camera_id, slot.capture_mono_us)
+        boxes = self.boxes.deadline_us(cam.camera_id, slot.capture_mono_us)
         return due if boxes is None else max(due, boxes)
 
     def _drop(self, now_mono_us: int) -> None:
@@ -803,16 +668,10 @@ class Companion:
         slot = cam.pending.pop(0)
         if slot.waited:
             self.stats.frames_waited += 1
-        detector = cam.pipeline.detector
-        used_before = detector.stats["used"] if isinstance(detector, BoxesDetector) else 0
+        used_before = self.boxes.boxes_used(cam.camera_id)
         result: FrameResult | None = self._step(cam, slot.image, slot.capture_mono_us, now_mono_us)
         cam.last_processed_capture_mono_us = slot.capture_mono_us
-        if self.box_feed:
-            st = self.stats.box_feed
-            if slot.waited_for_boxes:
-                st["frames waited"] += 1
-            used = isinstance(detector, BoxesDetector) and detector.stats["used"] > used_before
-            st["frames with boxes" if used else "frames without boxes"] += 1
+        self.boxes.frame_processed(cam.camera_id, slot.waited_for_boxes, used_before)
         offset = self.clock_offset_us()
         self.last_override = ""
         if result is not None:
@@ -992,7 +851,7 @@ class Companion:
             else:
                 self.endpoint.statustext(d.MAV_SEVERITY_INFO, f"TCM: {name} OK", now_mono_us)
         if self.box_feed:
-            self._report_box_feed(now_mono_us)
+            self.boxes.report(now_mono_us)
         overload = self.overload_problem(now_mono_us)
         if bool(overload) != self._overloaded:
             # One fault per overloaded spell, however the managed rate moves meanwhile.
@@ -1011,32 +870,8 @@ class Companion:
         return changes
 
     def box_feed_counts(self) -> dict[str, int]:
-        """The live box feed's counters (:attr:`CompanionStats.box_feed`) with the boxes
-        detectors' own: pushes no frame took (``unmatched``) or dropped for room
-        (``overflow``), over the current pipelines."""
-        out = dict(self.stats.box_feed)
-        for key, name in (("stale", "unmatched"), ("overflow", "overflow")):
-            n = sum(
-                c.pipeline.detector.stats[key]
-                for c in self.cameras
-                if isinstance(c.pipeline.detector, BoxesDetector)
-            )
-            if n:
-                out[name] = n
-        return out
-
-    def _report_box_feed(self, now_mono_us: int) -> None:
-        """A STATUSTEXT when messages were refused or not used since the last one (one
-        condition: the repeat interval of the endpoint paces it)."""
-        st = self.stats.box_feed
-        bad = sum(st[k] for k in BOX_FEED_BAD)
-        if bad <= self._box_feed_bad_reported:
-            return
-        self._box_feed_bad_reported = bad
-        parts = ", ".join(f"{st[k]} {k}" for k in BOX_FEED_BAD if st[k])
-        self.endpoint.statustext(
-            d.MAV_SEVERITY_WARNING, f"TCM: box feed: {parts}", now_mono_us, key="box feed bad"
-        )
+        """The live box feed's counters: :meth:`.LiveBoxes.all_counts`."""
+        return self.boxes.all_counts()
 
     def health_flags(self, now_mono_us: int) -> int:
         st = self.inputs.status(now_mono_us)
@@ -1102,14 +937,9 @@ class Companion:
         head = f"objects {len(objs)} ({st}) | "
         if ttcs:
             head += f"TTC {min(ttcs):.1f}s | "
-        boxes = ""
-        if self.box_feed:
-            bf = self.stats.box_feed
-            bad = sum(bf[k] for k in BOX_FEED_BAD)
-            boxes = f" | boxes {bf['frames with boxes']} frames, {bad} bad"
         return head + (
             f"{self.frame_rate_hz(now_mono_us):4.1f} fps | {latency}"
-            f" | drops {self.stats.frames_dropped}{boxes} | "
+            f" | drops {self.stats.frames_dropped}{self.boxes.status()} | "
             + ("; ".join(problems) if problems else "inputs OK")
         )
 

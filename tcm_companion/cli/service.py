@@ -261,6 +261,17 @@ def _status_every(text: str) -> int:
     return value
 
 
+def _add_status_every(p: argparse.ArgumentParser) -> None:
+    """``--status-every N`` (``run`` and ``sitl``)."""
+    p.add_argument(
+        "--status-every",
+        type=_status_every,
+        default=5,
+        metavar="N",
+        help="status line every N s when not a terminal (default 5; 0: no status line)",
+    )
+
+
 def _interruptible(cmd: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
     """A Ctrl-C while the run's own handlers are not in place (loading the configuration
     and the imports before it, the moment after it) ends the command with 130 and one
@@ -598,13 +609,7 @@ def add_parsers(sub: Any) -> None:
         help="stop after S seconds (> 0; default: until SIGTERM, exit 0, or SIGINT, exit 130)",
     )
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")
-    p.add_argument(
-        "--status-every",
-        type=_status_every,
-        default=5,
-        metavar="N",
-        help="status line every N s when not a terminal (default 5; 0: no status line)",
-    )
+    _add_status_every(p)
     p.add_argument(
         "--summary-json", metavar="FILE", default=None, help="write the run's summary as JSON"
     )
@@ -667,13 +672,7 @@ def add_parsers(sub: Any) -> None:
         " warm-up is below this, or nothing was decided (default 90; 0: not judged)",
     )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
-    p.add_argument(
-        "--status-every",
-        type=_status_every,
-        default=5,
-        metavar="N",
-        help="status line every N s when not a terminal (default 5; 0: no status line)",
-    )
+    _add_status_every(p)
     p.set_defaults(func=cmd_sitl)
 
     p = add_command(sub, "config", "Configuration tools: config check FILE.")

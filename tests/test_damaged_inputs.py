@@ -14,14 +14,17 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 import re
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from tcm_companion import cli
+from tcm_companion.flightlog import topics
 from tcm_companion.flightlog.reader import check_log, part_name
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,8 +71,14 @@ def test_without_check_a_truncated_log_replays_what_is_readable_with_exit_0(
     rc, out, err = replay(capsys, str(cut), "--results", str(tmp_path / "r.csv"))
     assert rc == 0
     assert "truncated" in err and "INCOMPLETE" in out
-    frames = int(re.search(r"(\d+) frames replayed", out).group(1))  # type: ignore[union-attr]
-    assert frames > 0 and "0 differ" in out
+    m = re.search(
+        r"(\d+) frames replayed.*?(\d+) differ(?: \((\d+) of them only by float rounding)?", out
+    )
+    assert m, out
+    frames, differ, rounding = int(m[1]), int(m[2]), int(m[3] or 0)
+    # Bit-exact where the numeric environment is the recording's; elsewhere the last bits
+    # move (docs/logging.md), and only those: nothing differs beyond float rounding.
+    assert frames > 0 and differ == rounding, out
     with open(tmp_path / "r.csv", newline="") as fh:
         assert len({row["frame"] for row in csv.DictReader(fh)}) == frames
 
@@ -109,15 +118,51 @@ def test_a_log_cut_before_its_metadata_is_an_error_that_says_truncated(
 def test_a_whole_log_passes_the_check_without_warnings(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Short but whole (it has its footer): fine."""
-    rc, out, err = replay(capsys, str(REFERENCE), "--results", str(tmp_path / "r.csv"), "--check")
+    """Short but whole (it has its footer): fine. Within float rounding: the reference was
+    written on another machine (docs/logging.md); test_log_replay.py checks it bit-exactly
+    where the numeric environment is the recording's."""
+    rc, out, err = replay(
+        capsys, str(REFERENCE), "--results", str(tmp_path / "r.csv"), "--check", "--rel-tol", "1e-9"
+    )
     assert rc == 0, (out, err)
     assert "warning" not in err and "INCOMPLETE" not in out
 
 
-def split_log(src: Path, dst: Path, n: int) -> list[Path]:
+def test_check_with_a_tolerance_accepts_rounding_and_nothing_more(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--rel-tol 1e-9`` is for a log written on another machine (its last bits round
+    differently); a disparity logged 1e-6 away from what the pipeline gives is a changed
+    behaviour, and the check still fails on it, naming the tolerance."""
+    edited: list[int] = []
+
+    def nudge(topic: str, data: bytes) -> bytes:
+        if topic != topics.RESULT or edited:
+            return data
+        doc = json.loads(data)
+        for obj in doc["objects"]:
+            if obj.get("disparity") is not None:
+                obj["disparity"] *= 1.0 + 1e-6
+                edited.append(doc["frame_index"])
+                return json.dumps(doc).encode()
+        return data
+
+    (path,) = split_log(REFERENCE, tmp_path / "log", 1, edit=nudge)
+    assert edited
+    rc, out, err = replay(
+        capsys, str(path), "--results", str(tmp_path / "r.csv"), "--check", "--rel-tol", "1e-9"
+    )
+    assert rc == 1, (out, err)
+    assert "check failed: 1 frame(s) differ from the flight beyond 1e-09 relative" in err
+    assert f"frame {edited[0]} " in out
+
+
+def split_log(
+    src: Path, dst: Path, n: int, edit: Callable[[str, bytes], bytes] | None = None
+) -> list[Path]:
     """``src`` rewritten as ``n`` parts of a log directory (each with the metadata, the
-    messages in their order, 128 KiB chunks), as the writer's rotation would leave it."""
+    messages in their order, 128 KiB chunks), as the writer's rotation would leave it;
+    ``edit(topic, data)`` may change a message's data on the way."""
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import Writer
@@ -157,8 +202,9 @@ def split_log(src: Path, dst: Path, n: int) -> list[Path]:
                     ids[msg.channel_id] = w.register_channel(
                         ch.topic, ch.message_encoding, sid, ch.metadata
                     )
+                data = msg.data if edit is None else edit(channels[msg.channel_id].topic, msg.data)
                 w.add_message(
-                    ids[msg.channel_id], msg.log_time, msg.data, msg.publish_time, msg.sequence
+                    ids[msg.channel_id], msg.log_time, data, msg.publish_time, msg.sequence
                 )
             w.finish()
         paths.append(path)

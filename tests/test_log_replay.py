@@ -41,7 +41,7 @@ from tcm_companion.flightlog.reader import decode_json, read_log
 from tcm_companion.flightlog.writer import LoggingConfig
 from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.results import ResultsWriter
-from tcm_companion.replay.log import compare, replay_log
+from tcm_companion.replay.log import ROUNDING_REL_TOL, compare, replay_log
 from tcm_companion.sitl.mock import run_sitl
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,7 +54,7 @@ LOGS = ROOT / "tests" / "data" / "logs"
 REFERENCES = sorted(LOGS.glob("*.mcap"))
 # Float results that another numeric environment (BLAS kernel, SIMD loops, numpy/OpenCV/
 # SciPy release) may round differently: seen up to 1.8e-15 relative (a few ulp).
-REL_TOL = 1e-9
+REL_TOL = ROUNDING_REL_TOL
 
 
 def lossless(config: AppConfig) -> AppConfig:

@@ -211,6 +211,12 @@ def replay_log(
             yield ReplayedFrame(doc, result)
 
 
+#: Disparities this close (relative) differ by float rounding only: another CPU's SIMD loops
+#: or BLAS kernel, another numpy/SciPy/OpenCV release (seen: a few ulp, up to 2.2e-15;
+#: docs/logging.md "Bit-exact where?").
+ROUNDING_REL_TOL = 1e-9
+
+
 def relative_difference(a: float, b: float) -> float:
     """``|a - b| / max(|a|, |b|)``; 0 when equal (two zeros included), inf for nan/inf."""
     if a == b:

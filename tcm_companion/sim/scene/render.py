@@ -144,12 +144,13 @@ class _Maps:
         return out.reshape(size, channels)[:n]
 
 
-def _planes_f32(samples: np.ndarray) -> list[np.ndarray]:
-    """(n, C) uint8 samples as C contiguous float32 planes (the values exactly)."""
+def _planes_f32(samples: np.ndarray) -> np.ndarray:
+    """(n, C) uint8 samples as (C, n) float32 planes, C-contiguous (the values exactly):
+    ``cv2.transpose`` of the bytes, then one conversion (cv2.split and C conversions
+    cost several times more)."""
     if samples.shape[1] == 1:
-        return [samples[:, 0].astype(np.float32)]
-    n, c = samples.shape
-    return [p.reshape(n).astype(np.float32) for p in cv2.split(samples.reshape(n, 1, c))]
+        return samples[:, 0].astype(np.float32)[None, :]
+    return cv2.transpose(samples).astype(np.float32)
 
 
 def _span(mask: np.ndarray) -> tuple[int, int]:
@@ -182,7 +183,7 @@ def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
 # Per-pixel data is planar, (channels, pixels): numpy gathers and scatters along the last
 # axis of such arrays are several times faster than row gathers of (pixels, channels).
 def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    return np.take(a, idx, axis=-1)
+    return a.take(idx, axis=-1)  # the method: np.take's Python wrapper costs as much
 
 
 def _take_all(idx: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -243,11 +244,22 @@ class _Layout:
         self.tile_centre_cam = centre  # (T, 3)
         self.tile_cos = np.cos(radius)
         self.tile_sin = np.sin(radius)
+        self._tile_cones = np.empty((self.tile_ids.size, 5))
+        self._tile_cones[:, 3] = -self.tile_cos
+        self._tile_cones[:, 4] = self.tile_sin
         self._ar = np.arange(self.t2)
         self.invalid_idx = np.nonzero(~self.valid)[0]
         self._camera = camera
         self._pixel_axes: tuple[np.ndarray, np.ndarray] | None = None
         self._pixel_rc: np.ndarray | None = None
+
+    def tile_cones(self, R_ned_from_cam: FloatArray) -> np.ndarray:
+        """(T, 5) per tile: its cone's axis in NED, ``-cos r``, ``sin r`` (r its radius):
+        dotted with ``(u, cos ρ, sin ρ)`` it is ``u·axis - cos(r + ρ)``, which is >= 0
+        where the tile's cone meets the cone of axis ``u`` and radius ρ."""
+        cones = self._tile_cones.copy()
+        np.matmul(self.tile_centre_cam, R_ned_from_cam.T, out=cones[:, :3])
+        return cones
 
     def pixel_axes_cam(self) -> tuple[np.ndarray, np.ndarray]:
         """(3, N) float32 bearing change across each pixel along u and along v (camera
@@ -319,7 +331,7 @@ class _Frame:
 
     origin: FloatArray  # camera position, NED m
     B: np.ndarray  # (3, N) float32 bearings in NED
-    tile_centre: FloatArray  # (T, 3) tile cone axes in NED
+    tile_cones: FloatArray  # (T, 5) tile cones in NED (:meth:`_Layout.tile_cones`)
     colour: np.ndarray  # (3, N) float32 linear RGB
     depth: np.ndarray  # (N,) float32 range along the ray, m
     ground: np.ndarray  # (N,) bool: ray meets the ground within _T_FAR_M
@@ -630,7 +642,7 @@ class Renderer:
         fr = _Frame(
             origin=origin,
             B=R.astype(np.float32) @ lay.bearing_cam,
-            tile_centre=lay.tile_centre_cam @ R.T,
+            tile_cones=lay.tile_cones(R),
             colour=np.zeros((3, lay.n), np.float32),
             depth=np.full(lay.n, np.inf, np.float32),
             ground=np.zeros(lay.n, bool),
@@ -668,7 +680,7 @@ class Renderer:
         fr = _Frame(
             origin=origin,
             B=B,
-            tile_centre=lay.tile_centre_cam @ R.T,
+            tile_cones=lay.tile_cones(R),
             colour=np.zeros((3, lay.n), np.float32),
             depth=np.full(lay.n, np.inf, np.float32),
             ground=ground,
@@ -716,16 +728,21 @@ class Renderer:
         sin_rho = np.clip(radii / safe, 0.0, 1.0)
         cos_rho = np.sqrt(1.0 - sin_rho * sin_rho)
         # cos(ρ + r) without a cosine on the (T, K) grid; ρ ≤ π/2 and tile radii are
-        # small, so ρ + r < π where the cosine is monotonic.
-        lay = self.layout
-        thr = lay.tile_cos[:, None] * cos_rho[None, :] - lay.tile_sin[:, None] * sin_rho[None, :]
-        hit = (fr.tile_centre @ u.T) >= thr
+        # small, so ρ + r < π where the cosine is monotonic. One product gives
+        # u·axis - cos(ρ + r) for every pair (the cull is conservative by 1.5 pixels at
+        # least, so its rounding decides nothing drawn).
+        cone = np.empty((5, u.shape[0]))
+        cone[:3] = u.T
+        cone[3] = cos_rho
+        cone[4] = sin_rho
+        hit = (fr.tile_cones @ cone) >= 0.0
         hit[:, inside] = True
         return hit
 
     def _pairs(self, hit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(pixel, object) index pairs of every pixel in every tile an object may cover."""
-        t, k = np.nonzero(hit)
+        flat = np.flatnonzero(hit)  # row-major, as np.nonzero(hit) orders its pairs
+        t, k = np.divmod(flat, hit.shape[1])
         t2 = self.layout.t2
         pix = (self.layout.tile_ids[t][:, None] * t2 + np.arange(t2)[None, :]).ravel()
         return pix, np.repeat(k, t2)
@@ -780,18 +797,18 @@ class Renderer:
         # lam - k is exact in float32, so this equals the float64 weight it once was.
         w = lam
         w -= k
-        scale = np.take(self._detail_scale, k)
+        scale = self._detail_scale.take(k)
         levels = []
         for lev in (0, 1):
             x, y = self._maps.coords(k.shape[0])
             np.multiply(x0, scale, out=x)
-            x += np.take(self._detail_ox[lev], k)
+            x += self._detail_ox[lev].take(k)
             np.multiply(y0, scale, out=y)
-            y += np.take(self._detail_oy[lev], k)
+            y += self._detail_oy[lev].take(k)
             levels.append(self._maps.sample(tex.detail_atlas, cv2.BORDER_REPLICATE))
             scale *= 0.5
-        a = np.stack(_planes_f32(levels[0]))
-        b = np.stack(_planes_f32(levels[1]))
+        a = _planes_f32(levels[0])
+        b = _planes_f32(levels[1])
         b -= a
         b *= w
         a += b
@@ -839,7 +856,7 @@ class Renderer:
                 m0c[f0:f1] += m1c
         lit = macro[3]
         lit *= np.float32(1.0 / 255.0)
-        albedo = np.stack(macro[:3])
+        albedo = macro[:3]
         albedo *= np.float32(tex.macro_scale)
         det = self._sample_detail(n, e, foot_m)
         stone = det[3]

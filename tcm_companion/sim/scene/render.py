@@ -175,6 +175,29 @@ def _copy_where(dst: np.ndarray, src: np.ndarray, mask: np.ndarray) -> None:
     dst[..., j:] = src[..., j:]
 
 
+def _apply_shades(
+    lit: np.ndarray,
+    ball_shades: list[tuple[np.ndarray, np.ndarray]],
+    target_shades: list[tuple[np.ndarray, np.ndarray]],
+) -> None:
+    """``lit *= sunlit``, sunlit the balls' sunlit fractions multiplied in order (from 1),
+    times the targets' likewise: over the span of the shaded points only (elsewhere the
+    factor is exactly 1)."""
+    locs = [loc for loc, _ in ball_shades + target_shades]
+    lo = min(int(loc[0]) for loc in locs)
+    hi = max(int(loc[-1]) for loc in locs) + 1
+    products = []
+    for shades in (ball_shades, target_shades):
+        if shades:
+            sunlit = np.ones(hi - lo, np.float32)
+            for loc, frac in shades:
+                sunlit[loc - lo] *= frac
+            products.append(sunlit)
+    if len(products) == 2:
+        products[0] *= products[1]
+    lit[lo:hi] *= products[0]
+
+
 def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
     t = np.clip((x - e0) * (1.0 / (e1 - e0)), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
@@ -248,7 +271,10 @@ class _Layout:
         self._tile_cones[:, 3] = -self.tile_cos
         self._tile_cones[:, 4] = self.tile_sin
         self._ar = np.arange(self.t2)
-        self.invalid_idx = np.nonzero(~self.valid)[0]
+        # Invalid pixels of the image (the padding past its edges is cropped away anyway).
+        in_image = np.zeros((hp, wp), bool)
+        in_image[:h, :w] = True
+        self.invalid_idx = np.nonzero(self._to_tiles(in_image) & ~self.valid)[0]
         self._camera = camera
         self._pixel_axes: tuple[np.ndarray, np.ndarray] | None = None
         self._pixel_rc: np.ndarray | None = None
@@ -506,6 +532,7 @@ class Renderer:
         ).reshape(-1, 3)
         self._cyl_bound_radius = np.hypot(self._cyl_radius, self._cyl_height / 2.0)
         self._scratch = np.full(self.layout.n, np.inf)
+        self._half_pix_max = 0.5 * float(self.layout.pix_rad.max())
 
         # Constants and buffers of the ground and the sky.
         self._maps = _Maps()
@@ -747,6 +774,37 @@ class Renderer:
         pix = (self.layout.tile_ids[t][:, None] * t2 + np.arange(t2)[None, :]).ravel()
         return pix, np.repeat(k, t2)
 
+    def _sphere_pairs(
+        self, fr: _Frame, centres: FloatArray, radii: FloatArray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_pairs` of the spheres' tiles, less the pixels whose bearing is farther
+        from a sphere's centre than its angular radius + half the largest pixel + 1 mrad
+        (their coverage is 0: ``γ ≥ ρ + p/2``), in the same order. The test is a float32
+        dot product on the tiles' bearings, 1 mrad conservative."""
+        hit = self._tiles_hit(fr, centres, radii)
+        flat = np.flatnonzero(hit)
+        if flat.size == 0:
+            return flat, flat
+        t, k = np.divmod(flat, hit.shape[1])
+        v = centres - fr.origin
+        dist = np.sqrt(np.sum(v * v, axis=1))
+        inside = dist <= radii * 1.0001
+        safe = np.where(inside, 1.0, dist)
+        reach = np.arcsin(np.minimum(radii / safe, 1.0)) + (self._half_pix_max + 1e-3)
+        cos_reach = np.where(inside | (reach >= math.pi), -2.0, np.cos(np.minimum(reach, math.pi)))
+        u = (v / safe[:, None]).astype(np.float32)
+        lay = self.layout
+        t2 = lay.t2
+        tiles = lay.tile_ids.take(t)
+        bt = fr.B.reshape(3, -1, t2).take(tiles, axis=1)  # (3, P, t2)
+        uk = u.take(k, axis=0)
+        cosg = bt[0] * uk[:, 0:1]
+        cosg += bt[1] * uk[:, 1:2]
+        cosg += bt[2] * uk[:, 2:3]
+        keep = np.flatnonzero(cosg >= cos_reach.astype(np.float32).take(k)[:, None])
+        p, i = np.divmod(keep, t2)
+        return tiles.take(p) * t2 + i, k.take(p)
+
     def _resolve(self, pix: np.ndarray, key: np.ndarray) -> np.ndarray:
         """Indices of the pairs with the smallest ``key`` for their pixel (one per pixel)."""
         scratch = self._scratch
@@ -887,13 +945,14 @@ class Renderer:
 
     def _ball_shadows(
         self, fr: _Frame, balls: list[tuple[FloatArray, Ball]], hits: _GroundHits
-    ) -> np.ndarray | None:
-        """Sunlit fraction left by the balls' shadows on the ground span (None where no
-        ball shades any ground pixel)."""
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Sunlit fraction left by each ball's shadow on the ground span, for the balls
+        that shade a ground pixel: ``(loc, fraction)``, ``loc`` the pixels (ascending, from
+        the span's start) :func:`_sunlit` multiplies."""
+        shades: list[tuple[np.ndarray, np.ndarray]] = []
         if not balls:
-            return None
+            return shades
         g0, _, n_all, e_all, foot_all = hits
-        sunlit: np.ndarray | None = None
         feet = [_footprint(c, b.radius_m, self._L) for c, b in balls]
         for k, idx in self._ground_under(fr, feet):
             centre, ball = balls[k]
@@ -902,10 +961,8 @@ class Renderer:
             cover = _sphere_shadow(
                 n.astype(np.float64), e.astype(np.float64), foot, centre, ball.radius_m, self._L
             )
-            if sunlit is None:
-                sunlit = np.ones(n_all.shape[0], np.float32)
-            sunlit[loc] *= (1.0 - cover).astype(np.float32)
-        return sunlit
+            shades.append((loc, (1.0 - cover).astype(np.float32)))
+        return shades
 
     def _draw_ground(
         self,
@@ -922,18 +979,12 @@ class Renderer:
         gm = fr.ground[g0:g1]
         t, n, e, foot = self._ground_hits(fr, g0, g1)
         hits = (g0, g1, n, e, foot)
-        sunlit = self._ball_shadows(fr, balls, hits)
-        if targets:
-            st = self._target_shadows(fr, targets, t_s, hits)
-            if st is not None:
-                if sunlit is None:
-                    sunlit = st
-                else:
-                    sunlit *= st
+        ball_shades = self._ball_shadows(fr, balls, hits)
+        target_shades = self._target_shadows(fr, targets, t_s, hits) if targets else []
         col, lit = self._ground_albedo(n, e, foot, gm)
         sun = self.world.sun
-        if sunlit is not None:
-            lit *= sunlit
+        if ball_shades or target_shades:
+            _apply_shades(lit, ball_shades, target_shades)
         lit *= np.float32(sun.irradiance * self._sin_sun)
         lit += np.float32(sun.ambient)
         col *= lit
@@ -981,7 +1032,7 @@ class Renderer:
             wrap *= size
             v -= wrap
             v -= 0.5
-        c = self._maps.sample(self.sky_tex.cloud, cv2.BORDER_WRAP).T
+        c = cv2.transpose(self._maps.sample(self.sky_tex.cloud, cv2.BORDER_WRAP))  # (2, M)
         dens = _smoothstep(0.03, 0.2, upc)
         dens *= c[0]
         cloud = self._cloud_rgb * c[1]
@@ -1051,7 +1102,7 @@ class Renderer:
         """All tree canopies in one pass: per pixel the nearest covering sphere wins."""
         if self._sph_radius.size == 0:
             return
-        pix, k = self._pairs(self._tiles_hit(fr, self._sph_centre, self._sph_radius))
+        pix, k = self._sphere_pairs(fr, self._sph_centre, self._sph_radius)
         if pix.size == 0:
             return
         b = _take(fr.B, pix).astype(np.float64)
@@ -1347,9 +1398,9 @@ class Renderer:
         targets: list[tuple[FloatArray, SolidTarget]],
         t_s: float,
         hits: _GroundHits,
-    ) -> np.ndarray | None:
-        """Sunlit fraction left by the non-spherical targets' shadows on the ground span
-        (None where no target shades any ground pixel).
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Sunlit fraction left by the non-spherical targets' shadows on the ground span,
+        as :meth:`_ball_shadows` gives the balls'.
 
         A convex solid's shadow on the ground is the convex hull of its points projected
         along the sun: a polygon; coverage is ``clip(-d / w + ½, 0, 1)`` with ``d`` the
@@ -1357,10 +1408,10 @@ class Renderer:
         ground footprint or the sun's penumbra, whichever is wider.
         """
         g0, _, n_all, e_all, foot_all = hits
-        sunlit: np.ndarray | None = None
+        shades: list[tuple[np.ndarray, np.ndarray]] = []
         L = self._L
         if L[2] > -1e-3:
-            return sunlit
+            return shades
         feet = [_footprint(c, tg.bounding_radius_m, L) for c, tg in targets]
         for k, idx in self._ground_under(fr, feet):
             centre, target = targets[k]
@@ -1387,10 +1438,8 @@ class Renderer:
             dmax = d.max(axis=1)
             width = np.maximum(foot.astype(np.float64), pen)
             cover = np.clip(-dmax / width + 0.5, 0.0, 1.0)
-            if sunlit is None:
-                sunlit = np.ones(n_all.shape[0], np.float32)
-            sunlit[loc] *= (1.0 - cover).astype(np.float32)
-        return sunlit
+            shades.append((loc, (1.0 - cover).astype(np.float32)))
+        return shades
 
 
 def _outline_points_ned(

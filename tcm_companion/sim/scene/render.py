@@ -1040,10 +1040,16 @@ class Renderer:
         cloud *= dens
         col += cloud
 
-        # Sun disc and glow (the glow fades to zero 26° from the sun). cos γ is computed
-        # as it always was, on the gathered sky bearings: a matrix-vector product's last
-        # bits depend on the array it is given.
-        si = np.nonzero(sky_mask)[0]
+        # Sun disc and glow (the glow fades to zero 26° from the sun), on the sky pixels of
+        # the tiles whose cones come within 0.45 rad of the sun (ascending, as before).
+        # cos γ is the same matrix-vector product as ever, on those pixels' bearings: its
+        # value for a column does not depend on the other columns, except for a product
+        # with one column (numpy takes another path), so fewer than two fall back to all.
+        cone = np.array([*self._L, math.cos(0.45), math.sin(0.45)])
+        si = self.layout.pixels_of_tiles(np.flatnonzero(fr.tile_cones @ cone >= 0.0))
+        si = si.compress(sky_mask.take(si))
+        if si.size < 2:
+            si = np.nonzero(sky_mask)[0]
         cosg = self._L32 @ _take(B, si)
         near = np.nonzero(cosg > math.cos(0.45))[0]
         if near.size:

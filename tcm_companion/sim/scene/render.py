@@ -539,9 +539,21 @@ class Renderer:
         self._maps_far = _Maps()
         self._L32 = self._L.astype(np.float32)
         offs = self.tex.detail_offsets_px - 0.5
-        self._detail_scale = np.exp2(-np.arange(DETAIL_LEVELS, dtype=np.float32))
-        self._detail_ox = (offs[:, 0].copy(), offs[1:, 0].copy())  # level k, level k + 1
-        self._detail_oy = (offs[:, 1].copy(), offs[1:, 1].copy())
+        # Per mip level k (the pixel's lower level, then k + 1): texel scale and atlas
+        # offsets, as 256-entry float32 tables for cv2.LUT on uint8 level numbers (a
+        # lookup: the same values as indexing, without int64 indices).
+        scale = np.exp2(-np.arange(DETAIL_LEVELS, dtype=np.float32))
+        ox = (offs[:, 0], offs[1:, 0])  # level k, level k + 1
+        oy = (offs[:, 1], offs[1:, 1])
+
+        def lut(values: np.ndarray) -> np.ndarray:
+            table = np.zeros(256, np.float32)
+            table[: values.shape[0]] = values
+            return table
+
+        self._detail_luts = tuple(
+            (lut(scale * np.float32(0.5**lev)), lut(ox[lev]), lut(oy[lev])) for lev in (0, 1)
+        )
         self._stone_rgb = np.asarray(world.ground.stone_rgb, np.float32)[:, None]
         sky = world.sky
         self._hor_rgb = np.asarray(sky.horizon_rgb, np.float32)[:, None]
@@ -811,8 +823,15 @@ class Renderer:
         np.minimum.at(scratch, pix, key)
         win = np.nonzero(key <= scratch[pix])[0]
         scratch[pix] = np.inf
-        _, first = np.unique(pix[win], return_index=True)
-        return win[first]
+        # np.unique(pix[win], return_index=True) without its wrappers: a stable sort, the
+        # first of each run of equal pixels (so the pairs come out by ascending pixel).
+        pw = pix.take(win)
+        perm = pw.argsort(kind="stable")
+        aux = pw.take(perm)
+        first = np.empty(aux.shape[0], bool)
+        first[:1] = True
+        np.not_equal(aux[1:], aux[:-1], out=first[1:])
+        return win.take(perm.compress(first))
 
     # ---------------------------------------------------------------------------------
     # Ground and sky
@@ -837,6 +856,8 @@ class Renderer:
 
     def _sample_detail(self, n: np.ndarray, e: np.ndarray, foot_m: np.ndarray) -> np.ndarray:
         """Trilinear sample of the detail mip chain: (4, M) float32 (mult × 128, stone × 255)."""
+        if n.shape[0] == 0:
+            return np.zeros((4, 0), np.float32)
         tex = self.tex
         inv_texel = np.float32(1.0 / tex.detail_texel_m)
         period = np.float32(tex.detail_px)
@@ -851,20 +872,19 @@ class Renderer:
         np.maximum(lam, 1.0, out=lam)
         np.log2(lam, out=lam)
         np.clip(lam, 0.0, DETAIL_LEVELS - 1.001, out=lam)
-        k = lam.astype(np.int32)
+        k = lam.astype(np.uint8)  # 0 .. DETAIL_LEVELS - 2
         # lam - k is exact in float32, so this equals the float64 weight it once was.
         w = lam
         w -= k
-        scale = self._detail_scale.take(k)
         levels = []
-        for lev in (0, 1):
+        for scale_lut, ox_lut, oy_lut in self._detail_luts:
             x, y = self._maps.coords(k.shape[0])
+            scale = cv2.LUT(k, scale_lut).reshape(-1)
             np.multiply(x0, scale, out=x)
-            x += self._detail_ox[lev].take(k)
+            x += cv2.LUT(k, ox_lut).reshape(-1)
             np.multiply(y0, scale, out=y)
-            y += self._detail_oy[lev].take(k)
+            y += cv2.LUT(k, oy_lut).reshape(-1)
             levels.append(self._maps.sample(tex.detail_atlas, cv2.BORDER_REPLICATE))
-            scale *= 0.5
         a = _planes_f32(levels[0])
         b = _planes_f32(levels[1])
         b -= a

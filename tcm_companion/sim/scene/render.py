@@ -531,6 +531,20 @@ class Renderer:
             [self._cyl_base[0], self._cyl_base[1], -self._cyl_height / 2.0], axis=1
         ).reshape(-1, 3)
         self._cyl_bound_radius = np.hypot(self._cyl_radius, self._cyl_height / 2.0)
+        # The static clutter's bounding spheres, culled against the tiles in one pass:
+        # buildings, then trunks and posts, then canopies.
+        box_lo = np.array([b.min_ned_m for b in world.buildings], np.float64).reshape(-1, 3)
+        box_hi = np.array([b.max_ned_m for b in world.buildings], np.float64).reshape(-1, 3)
+        self._clutter_centre = np.concatenate(
+            [(box_lo + box_hi) / 2.0, self._cyl_bound_centre, self._sph_centre]
+        )
+        self._clutter_radius = np.concatenate(
+            [
+                np.linalg.norm(box_hi - box_lo, axis=1) / 2.0,
+                self._cyl_bound_radius,
+                self._sph_radius,
+            ]
+        )
         self._scratch = np.full(self.layout.n, np.inf)
         self._half_pix_max = 0.5 * float(self.layout.pix_rad.max())
 
@@ -730,10 +744,13 @@ class Renderer:
         if background:
             self._draw_sky(fr, lay.valid & ~ground)
             self._draw_ground(fr, balls, targets, t_s)
-        for box in self.world.buildings:
-            self._draw_box(fr, box)
-        self._draw_cylinders(fr)
-        self._draw_canopies(fr)
+        if self._clutter_radius.size:
+            hit = self._tiles_hit(fr, self._clutter_centre, self._clutter_radius)
+            nb, nc = len(self.world.buildings), self._cyl_radius.size
+            for j, box in enumerate(self.world.buildings):
+                self._draw_box(fr, box, hit[:, j])
+            self._draw_cylinders(fr, hit[:, nb : nb + nc])
+            self._draw_canopies(fr, hit[:, nb + nc :])
         objects: list[tuple[FloatArray, Target]] = [*balls, *targets]
         objects.sort(key=lambda cb: -float(np.linalg.norm(cb[0] - origin)))
         cov = np.zeros((len(objects), lay.n), np.float32) if coverage is not None else None
@@ -787,13 +804,12 @@ class Renderer:
         return pix, np.repeat(k, t2)
 
     def _sphere_pairs(
-        self, fr: _Frame, centres: FloatArray, radii: FloatArray
+        self, fr: _Frame, hit: np.ndarray, centres: FloatArray, radii: FloatArray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_pairs` of the spheres' tiles, less the pixels whose bearing is farther
+        """:meth:`_pairs` of ``hit`` (the spheres' tiles, :meth:`_tiles_hit`), less the pixels whose bearing is farther
         from a sphere's centre than its angular radius + half the largest pixel + 1 mrad
         (their coverage is 0: ``γ ≥ ρ + p/2``), in the same order. The test is a float32
         dot product on the tiles' bearings, 1 mrad conservative."""
-        hit = self._tiles_hit(fr, centres, radii)
         flat = np.flatnonzero(hit)
         if flat.size == 0:
             return flat, flat
@@ -1124,11 +1140,12 @@ class Renderer:
         solid = np.nonzero(alpha >= 0.5)[0]
         fr.depth[_take(idx, solid)] = _take(t, solid)
 
-    def _draw_canopies(self, fr: _Frame) -> None:
-        """All tree canopies in one pass: per pixel the nearest covering sphere wins."""
+    def _draw_canopies(self, fr: _Frame, hit: np.ndarray) -> None:
+        """All tree canopies in one pass: per pixel the nearest covering sphere wins.
+        ``hit`` (T, K): the tiles each canopy may cover (:meth:`_tiles_hit`)."""
         if self._sph_radius.size == 0:
             return
-        pix, k = self._sphere_pairs(fr, self._sph_centre, self._sph_radius)
+        pix, k = self._sphere_pairs(fr, hit, self._sph_centre, self._sph_radius)
         if pix.size == 0:
             return
         b = _take(fr.B, pix).astype(np.float64)
@@ -1163,11 +1180,12 @@ class Renderer:
             _put(albedo, leafy, _take(albedo, leafy) * (lum * lum))
         self._blend(fr, pix, self._shade(albedo, normal), alpha, th)
 
-    def _draw_cylinders(self, fr: _Frame) -> None:
-        """Trunks and posts in one pass, anti-aliased across their width."""
+    def _draw_cylinders(self, fr: _Frame, hit: np.ndarray) -> None:
+        """Trunks and posts in one pass, anti-aliased across their width. ``hit`` (T, K):
+        the tiles each may cover (:meth:`_tiles_hit` of their bounding spheres)."""
         if self._cyl_radius.size == 0:
             return
-        pix, k = self._pairs(self._tiles_hit(fr, self._cyl_bound_centre, self._cyl_bound_radius))
+        pix, k = self._pairs(hit)
         if pix.size == 0:
             return
         b = _take(fr.B, pix).astype(np.float64)
@@ -1210,12 +1228,10 @@ class Renderer:
         normal = np.stack([hn / norm, he / norm, np.zeros_like(hn)])
         self._blend(fr, pix, self._shade(_take(self._cyl_albedo, k), normal), alpha, th)
 
-    def _draw_box(self, fr: _Frame, box: Box) -> None:
+    def _draw_box(self, fr: _Frame, box: Box, hit_tiles: np.ndarray) -> None:
+        """A building; ``hit_tiles`` (T,) the tiles its bounding sphere may cover."""
         lo3, hi3 = np.asarray(box.min_ned_m), np.asarray(box.max_ned_m)
-        hit_tiles = self._tiles_hit(
-            fr, ((lo3 + hi3) / 2.0)[None, :], np.array([np.linalg.norm(hi3 - lo3) / 2.0])
-        )
-        tiles = np.nonzero(hit_tiles[:, 0])[0]
+        tiles = np.nonzero(hit_tiles)[0]
         if tiles.size == 0:
             return
         idx = self.layout.pixels_of_tiles(tiles)

@@ -313,8 +313,21 @@ def _colour_target(table: str) -> dict[str, RangeSpec]:
             "grow_hue_deg": "[-90, 90] deg",
             "grow_min_saturation": "[0, 1]",  # and at most the seed's
             "grow_min_value": "[0, 1]",
+            # A Lab target's tolerances: CIE76 ΔE*ab from its lab colour (seed ≤ grow).
+            "seed_max_delta_e": "(0, 200]",
+            "grow_max_delta_e": "(0, 200]",
+            "delta_e_lightness_factor": "[0.1, 10]",  # ΔL* counts 1/this
         },
-    )
+    ) | {
+        # A Lab target's colour: CIELAB, L* 0..100, a* and b* about -128..127.
+        f"{table}.lab": PerItem(
+            (
+                ("L", Range.parse("[0, 100]")),
+                ("a", Range.parse("[-128, 127]")),
+                ("b", Range.parse("[-128, 127]")),
+            )
+        )
+    }
 
 
 def _camera_lens(table: str) -> dict[str, RangeSpec]:

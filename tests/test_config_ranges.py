@@ -381,6 +381,9 @@ def _doc(key: str, position: int | None, value: float) -> dict[str, Any]:
         ball[position] = value
         node[name] = [ball]
     else:
+        spec = RANGES.get(key)
+        if not default and isinstance(spec, PerItem):  # empty by default (a colour's lab)
+            default = [0.0] * len(spec.items)
         items = list(default) if default else [value]
         items[position] = int(value) if isinstance(items[position], int) else value
         node[name] = items

@@ -9,11 +9,14 @@ a red ball by colour and grows regions from seeds; here that is, for each config
 
 1. **Candidates** — a cheap full-frame test that every seed passes: the channel(s) of the
    target's hue sector well above the rest (for red: R well above G and B; see
-   :class:`_Target`); a coarse grid of candidate cells gives regions of interest, so
-   that everything after this step runs on small crops only.
+   :class:`_Target`), or for a Lab target the box around its seed sphere in 8-bit Lab;
+   a coarse grid of candidate cells gives regions of interest, so that everything after
+   this step runs on small crops only.
 2. **Seeds and growth (hysteresis)** — in each region, HSV seeds of strong, saturated
    colour (the lit side) and connected components of a weaker one (the dark shaded
-   side); a component is kept only if it holds seeds. Notches and holes (a specular
+   side); for a Lab target, pixels within the seed and the growth colour differences
+   (ΔE*ab, lightness weighted) of its CIELAB colour. A component is kept only if it
+   holds seeds. Notches and holes (a specular
    highlight) are filled. On a 360° panorama regions are taken modulo the width, so a
    blob across the left and right edges is one object.
 3. **Measurement through the camera model** — pixels within a couple of pixels of the
@@ -36,7 +39,10 @@ The rim is unmixed in code values (``light_exponent`` 1): an edge mixed in linea
 (a camera's optics, this project's simulator) reads a dark object on a bright sky a
 fixed fraction of a pixel too small (−2 to −5 % of the radius at 5° to 2°), a bright one
 on a dark background too large.
-Grey, white and black objects have no hue and cannot be targets.
+Grey, white and black objects have no hue: they are Lab targets, which also find
+whatever else has their colour (a grey building, white clouds; docs/detection.md), and
+one object matched by two Lab targets (a grey one's shaded side is dark grey) is
+reported once, by the better-matching target.
 
 Pure: numpy and OpenCV over an image passed in; no IO, no clock.
 
@@ -101,6 +107,13 @@ class _Target:
     def __init__(self, spec: ColourTarget) -> None:
         self.spec = spec
         self.label = spec.label
+        self.lab: _LabTarget | None = _LabTarget(spec) if spec.is_lab else None
+        self.sector: tuple[tuple[int, ...], tuple[int, ...]] | None = None
+        if self.lab is not None:
+            self.code = cv2.COLOR_BGR2Lab
+            # The strength plane's level that every seed reaches (see _LabTarget).
+            self.pure_level = self.lab.seed_strength
+            return
         plan = hue_plan(spec.hue_deg, spec.seed_hue_deg, spec.grow_hue_deg)
         # COLOR_RGB2HSV on a BGR image reads a true hue θ as (240° - θ): red lands at 120
         # (half-degrees), far from the wrap, and each mask is one inRange call.
@@ -118,9 +131,7 @@ class _Target:
         centre = 0.5 * (seed_lo_deg + seed_hi_deg)
         sector = round(centre / 60.0) * 60
         h_max = max(abs(seed_lo_deg - sector), abs(seed_hi_deg - sector)) + 2.0
-        self.sector: tuple[tuple[int, ...], tuple[int, ...]] | None = (
-            _SECTORS[sector % 360] if h_max < 60.0 else None
-        )
+        self.sector = _SECTORS[sector % 360] if h_max < 60.0 else None
         self.prefilter_ratio = max(spec.seed_min_saturation * (1.0 - h_max / 60.0) - 0.01, 0.0)
         self.prefilter_min = max(
             math.floor(
@@ -129,6 +140,70 @@ class _Target:
             - 2.0,
             0.0,
         )
+        # Seeds' least HSV saturation: the object's own colour (never a highlight).
+        self.pure_level = self.seed_lo[1]
+
+    def convert(self, image_bgr: np.ndarray) -> np.ndarray:
+        """The image in the target's colour space (HSV, or OpenCV's 8-bit Lab)."""
+        return np.asarray(cv2.cvtColor(image_bgr, self.code))
+
+    def seed_mask(self, conv: np.ndarray) -> np.ndarray:
+        """255 on seed pixels of a converted image."""
+        if self.lab is not None:
+            return self.lab.within(conv, self.lab.seed_de2)
+        return np.asarray(cv2.inRange(conv, self.seed_lo, self.seed_hi))
+
+    def grow_mask(self, conv: np.ndarray) -> np.ndarray:
+        """255 on pixels a blob may grow through."""
+        if self.lab is not None:
+            return self.lab.within(conv, self.lab.grow_de2)
+        return np.asarray(cv2.inRange(conv, self.grow_lo, self.grow_hi))
+
+    def strength(self, conv: np.ndarray) -> np.ndarray:
+        """How strongly each pixel is of the target's colour, 0..255 (uint8): a hue
+        target's HSV saturation; a Lab target's closeness, 255·(1 - ΔE/grow ΔE).
+        Seeds reach :attr:`pure_level`; the detection's score is its mean over the blob."""
+        if self.lab is not None:
+            return self.lab.closeness(conv)
+        return conv[..., 1]
+
+
+class _LabTarget:
+    """A Lab target on OpenCV's 8-bit Lab (``L·255/100``, ``a + 128``, ``b + 128``):
+    ΔE*ab from the target colour, in true CIELAB units."""
+
+    def __init__(self, spec: ColourTarget) -> None:
+        L, a, b = spec.lab
+        self.centre = np.array([L * 255.0 / 100.0, a + 128.0, b + 128.0], np.float32)
+        # Per-channel scale from 8-bit units to CIELAB units (L* weighted by 1/k).
+        k = spec.delta_e_lightness_factor
+        self.scale = np.array([100.0 / 255.0 / k, 1.0, 1.0], np.float32)
+        self.seed_de2 = float(spec.seed_max_delta_e) ** 2
+        self.grow_de2 = float(spec.grow_max_delta_e) ** 2
+        self.grow_de = float(spec.grow_max_delta_e)
+        self.seed_strength = max(
+            math.floor(255.0 * (1.0 - spec.seed_max_delta_e / spec.grow_max_delta_e)), 0
+        )
+        # Full-frame prefilter: the box around the seed sphere, a superset of the seeds
+        # (one code value of slack for OpenCV's rounding).
+        de = spec.seed_max_delta_e
+        half = np.array([de * k * 2.55, de, de], np.float32)
+        lo, hi = (self.centre - half).tolist(), (self.centre + half).tolist()
+        self.box_lo = tuple(max(math.floor(v) - 1, 0) for v in lo)
+        self.box_hi = tuple(min(math.ceil(v) + 1, 255) for v in hi)
+
+    def delta_e2(self, conv: np.ndarray) -> np.ndarray:
+        """Squared ΔE*ab (float32, H×W) of every pixel of an 8-bit Lab image."""
+        d = (conv.astype(np.float32) - self.centre) * self.scale
+        return np.asarray(np.einsum("ijk,ijk->ij", d, d))
+
+    def within(self, conv: np.ndarray, limit2: float) -> np.ndarray:
+        return (self.delta_e2(conv) <= np.float32(limit2)).view(np.uint8) * np.uint8(255)
+
+    def closeness(self, conv: np.ndarray) -> np.ndarray:
+        de = np.sqrt(self.delta_e2(conv))
+        out = np.clip(255.0 * (1.0 - de / np.float32(self.grow_de)), 0.0, 255.0)
+        return out.astype(np.uint8)
 
 
 def _disc(radius: int) -> np.ndarray:
@@ -207,6 +282,8 @@ class ColourDetector(DetectorBackend):
         self._scratch3 = np.empty((self._h, self._w), np.uint8)
         # Full-frame HSV (conversion code, image), for targets without a prefilter.
         self._hsv: tuple[int, np.ndarray] | None = None
+        # Full-frame 8-bit Lab, for Lab targets.
+        self._lab: np.ndarray | None = None
 
     # -- public ---------------------------------------------------------------------
     def detect(self, image_bgr: np.ndarray, frame_time_us: int = 0) -> list[Detection]:
@@ -223,9 +300,17 @@ class ColourDetector(DetectorBackend):
         cfg = self.config
         cv2.split(image_bgr, self._planes)
         self._hsv = None
+        self._lab = None
         dets: list[Detection] = []
-        for target in self.targets:
-            dets.extend(self._detect_target(image_bgr, target))
+        lab: list[tuple[int, Detection]] = []
+        for i, target in enumerate(self.targets):
+            found = self._detect_target(image_bgr, target)
+            if target.lab is None:
+                dets.extend(found)
+            else:
+                lab.extend((i, d) for d in found)
+        if lab:
+            dets = _one_per_object(dets, lab, self._w if self._wrap else 0)
         dets.sort(key=lambda d: d.solid_angle_sr, reverse=True)
         return dets[: cfg.max_detections]
 
@@ -235,6 +320,7 @@ class ColourDetector(DetectorBackend):
         call."""
         cv2.split(image_bgr, self._planes)
         self._hsv = None
+        self._lab = None
         if len(self.targets) == 1:
             return self._target_candidates(image_bgr, self.targets[0])
         union = np.zeros((self._h, self._w), np.uint8)
@@ -248,13 +334,17 @@ class ColourDetector(DetectorBackend):
         tests)."""
         out = np.zeros((self._h, self._w), np.uint8)
         for t in self.targets:
-            hsv = cv2.cvtColor(image_bgr, t.code)
-            cv2.bitwise_or(out, cv2.inRange(hsv, t.seed_lo, t.seed_hi), dst=out)
+            cv2.bitwise_or(out, t.seed_mask(t.convert(image_bgr)), dst=out)
         return out
 
     # -- internals ------------------------------------------------------------------
     def _target_candidates(self, image_bgr: np.ndarray, t: _Target) -> np.ndarray:
         """One target's candidate mask (self._candidates); the planes are split."""
+        if t.lab is not None:  # the box around the seed sphere, on full-frame Lab
+            if self._lab is None:
+                self._lab = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2Lab)
+            box = t.lab
+            return np.asarray(cv2.inRange(self._lab, box.box_lo, box.box_hi, dst=self._candidates))
         if t.sector is None:
             if self._hsv is None or self._hsv[0] != t.code:
                 self._hsv = (t.code, cv2.cvtColor(image_bgr, t.code))
@@ -314,11 +404,11 @@ class ColourDetector(DetectorBackend):
         roi = self._clamp(roi)
         for _ in range(8):
             img_roi = np.ascontiguousarray(self._take(image_bgr, roi))
-            hsv_roi = cv2.cvtColor(img_roi, t.code)
-            seed = cv2.inRange(hsv_roi, t.seed_lo, t.seed_hi)
+            conv_roi = t.convert(img_roi)
+            seed = t.seed_mask(conv_roi)
             if cv2.countNonZero(seed) < cfg.min_seed_px:
                 return []
-            grow = cv2.inRange(hsv_roi, t.grow_lo, t.grow_hi)
+            grow = t.grow_mask(conv_roi)
             n, labels, stats, _ = cv2.connectedComponentsWithStats(grow, connectivity=8)
             seed_counts = np.bincount(labels[seed > 0], minlength=n)
             kept = np.flatnonzero(seed_counts[1:] >= cfg.min_seed_px) + 1
@@ -340,8 +430,9 @@ class ColourDetector(DetectorBackend):
                 break
             roi = bigger
         out: list[tuple[int, Detection]] = []
+        strength = t.strength(conv_roi)
         for k in kept:
-            res = self._measure(img_roi, hsv_roi, grow, labels, stats[k], int(k), roi, t)
+            res = self._measure(img_roi, strength, grow, labels, stats[k], int(k), roi, t)
             if res is not None:
                 out.append(res)
         return out
@@ -349,7 +440,7 @@ class ColourDetector(DetectorBackend):
     def _measure(
         self,
         img_roi: np.ndarray,
-        hsv_roi: np.ndarray,
+        strength: np.ndarray,
         grow: np.ndarray,
         labels: np.ndarray,
         stat: np.ndarray,
@@ -357,7 +448,9 @@ class ColourDetector(DetectorBackend):
         roi: _Roi,
         t: _Target,
     ) -> tuple[int, Detection] | None:
-        """Measure one grown blob through the camera model; None if it fails the limits."""
+        """Measure one grown blob through the camera model; None if it fails the limits.
+
+        ``strength``: the region's :meth:`_Target.strength` plane (0..255)."""
         cfg, m = self.config, self._margin
         x, y, w, h = (int(v) for v in stat[:4])
         bx0, by0 = max(x - m, 0), max(y - m, 0)
@@ -371,7 +464,7 @@ class ColourDetector(DetectorBackend):
         filled = _u8(cv2.subtract(mask, raw))
         crop = (
             img_roi[by0:by1, bx0:bx1],
-            hsv_roi[by0:by1, bx0:bx1, 1],
+            strength[by0:by1, bx0:bx1],
             grow[by0:by1, bx0:bx1],
         )
         weight = self._weights(crop, raw, filled, mask, valid, t)
@@ -410,8 +503,8 @@ class ColourDetector(DetectorBackend):
         black = cv2.inRange(img_roi[by0:by1, bx0:bx1], (0, 0, 0), (cfg.black_level,) * 3)
         border = self._take(self._border, sub) | _u8(cv2.dilate(black, _K3))
         touches = bool(cv2.countNonZero(border & mask))
-        # Score: mean HSV saturation (0..1) of the grown pixels.
-        score = cv2.mean(hsv_roi[by0:by1, bx0:bx1, 1], mask=raw)[0] / 255.0
+        # Score: mean strength (0..1) of the grown pixels (a hue target: HSV saturation).
+        score = cv2.mean(strength[by0:by1, bx0:bx1], mask=raw)[0] / 255.0
         # One key per object even when two regions of interest reach it: its first
         # pixel in raster order (top row, smallest column modulo the width).
         top = np.flatnonzero(raw[y - by0])
@@ -447,16 +540,16 @@ class ColourDetector(DetectorBackend):
         weight = inner.astype(np.float32)
         ys, xs = np.nonzero(_u8(cv2.subtract(near, inner)) & valid)
         if ys.size:
-            img, saturation, grow = crop
+            img, strength, grow = crop
             weight[ys, xs] = self._rim_fractions(
-                img, saturation, grow, raw, filled, mask, inner, near, valid, ys, xs, t
+                img, strength, grow, raw, filled, mask, inner, near, valid, ys, xs, t
             )
         return weight
 
     def _rim_fractions(
         self,
         img: np.ndarray,
-        saturation: np.ndarray,
+        strength: np.ndarray,
         grow: np.ndarray,
         raw: np.ndarray,
         filled: np.ndarray,
@@ -491,9 +584,10 @@ class ColourDetector(DetectorBackend):
         ``inner`` its interior, ``near`` its dilation.
         """
         cfg = self.config
-        # The object's colour comes from saturated grown pixels (never a highlight), as
-        # far inside as there are any.
-        pure = _u8(raw & (saturation >= t.seed_lo[1]).view(np.uint8))
+        # The object's colour comes from grown pixels as strongly of the target's colour
+        # as a seed (saturated, for a hue target; never a highlight), as far inside as
+        # there are any.
+        pure = _u8(raw & (strength >= t.pure_level).view(np.uint8))
         source = _u8(inner & pure)
         if not source.any():
             source = _u8(cv2.erode(mask, _K3)) & pure
@@ -597,6 +691,37 @@ class ColourDetector(DetectorBackend):
             spread2 = np.maximum(at[:, w_at + 1] / wsum - np.einsum("ij,ij->i", mean, mean), 0.0)
             out += [mean, spread2]
         return out[0], out[1], out[2], out[3]
+
+
+def _one_per_object(
+    hue: list[Detection], lab: list[tuple[int, Detection]], wrap_width: int
+) -> list[Detection]:
+    """The hue targets' detections and the Lab targets' (target index, detection), one
+    per object. Lab targets that differ mostly in lightness see each other's objects (a
+    grey object's shaded side is dark grey), so a Lab detection is dropped when it and a
+    kept detection of another target (any hue one, or a better-scoring Lab one) hold
+    each other's centroid in their boxes. Hue detections are kept as they are (as before
+    Lab targets existed), and a target's own detections are distinct objects."""
+    kept: list[tuple[int, Detection]] = [(-1, d) for d in hue]
+    for i, d in sorted(lab, key=lambda item: item[1].score, reverse=True):
+        if not any(
+            j != i
+            and (
+                _inside(d.centroid_px, k.bbox_px, wrap_width)
+                or _inside(k.centroid_px, d.bbox_px, wrap_width)
+            )
+            for j, k in kept
+        ):
+            kept.append((i, d))
+    return [d for _, d in kept]
+
+
+def _inside(point: tuple[float, float], box: tuple[int, int, int, int], wrap_width: int) -> bool:
+    """Whether a pixel point lies in a detection's box; on a full panorama
+    (``wrap_width`` its width, else 0) a box may run past the right edge."""
+    x, y = point
+    x0, y0, x1, y1 = box
+    return y0 <= y <= y1 and (x0 <= x <= x1 or x0 <= x + wrap_width <= x1)
 
 
 def _u8(a: np.ndarray | cv2.typing.MatLike) -> NDArray[np.uint8]:

@@ -5,7 +5,9 @@ One flat table (``config.toml``'s ``[detection]``), chosen by ``backend``:
 - ``colour``: colour segmentation. The flat keys ``label``, ``hue_deg``, ``seed_*`` and
   ``grow_*`` describe one colour target, by default the paper's saturated red ball (hue
   ranges are signed degrees from ``hue_deg``); ``targets`` (``[[detection.targets]]``
-  tables with the same keys) replaces it with several.
+  tables with the same keys) replaces it with several. A target with ``lab`` (a CIELAB
+  colour) and ``seed_max_delta_e`` / ``grow_max_delta_e`` (colour differences from it)
+  is a Lab target instead of a hue one: any colour, grey, white and black included.
 - ``boxes``: boxes from someone else's detector (a scenario's ``detections.csv`` in
   replay, pushed by a feeder process live), measured through the camera model.
 - ``onnx``: a YOLOv8-layout detector exported to ONNX (``onnx_model``), run with OpenCV's
@@ -34,8 +36,11 @@ BoxRadius = Literal["short", "mean", "long", "rms"]
 # orange/yellow. Saturation and value are fractions (0..1) of HSV's S and V.
 _SEED_HUE_DEG = (-15.0, 12.0)
 _GROW_HUE_DEG = (-30.0, 14.0)
-_COLOUR_KEYS = (
-    "label",
+# A Lab target's seed and growth tolerances (CIE76 ΔE*ab, Euclidean in L*a*b*).
+_SEED_MAX_DELTA_E = 6.0
+_GROW_MAX_DELTA_E = 12.0
+_LIGHTNESS_FACTOR = 2.0
+_HUE_KEYS = (
     "hue_deg",
     "seed_hue_deg",
     "seed_min_saturation",
@@ -44,6 +49,8 @@ _COLOUR_KEYS = (
     "grow_min_saturation",
     "grow_min_value",
 )
+_LAB_KEYS = ("lab", "seed_max_delta_e", "grow_max_delta_e", "delta_e_lightness_factor")
+_COLOUR_KEYS = ("label", *_HUE_KEYS, *_LAB_KEYS)
 
 
 @dataclass(frozen=True)
@@ -61,18 +68,43 @@ class _ColourKeys:
     grow_hue_deg: tuple[float, float] = _GROW_HUE_DEG
     grow_min_saturation: float = 0.60
     grow_min_value: float = 0.07
+    # A Lab target instead (any colour, grey, white and black included): the object's
+    # colour as the camera sees its lit side, CIELAB (L* 0..100, a* and b* about
+    # -128..127; sRGB, D65, as OpenCV converts 8-bit BGR). Empty: a hue target.
+    lab: tuple[float, ...] = ()
+    # Seeds: pixels within this colour difference of ``lab`` (CIE76 ΔE*ab, the
+    # Euclidean distance in L*a*b*; ~2.3 is a just-noticeable difference).
+    seed_max_delta_e: float = _SEED_MAX_DELTA_E
+    # Growth: within this wider one (the shaded side, the rim); at least the seed's.
+    grow_max_delta_e: float = _GROW_MAX_DELTA_E
+    # Lightness differences count 1/this in both: ΔE = √((ΔL*/k)² + Δa*² + Δb*²) (CMC's
+    # l:c weighting). Shade changes a surface's L* far more than its a*, b*, so k > 1
+    # follows an object into its shade without taking in other colours.
+    delta_e_lightness_factor: float = _LIGHTNESS_FACTOR
 
 
 @dataclass(frozen=True)
 class ColourTarget(_ColourKeys):
     """One colour to segment: seeds of strong colour, grown through a weaker one.
 
-    ``hue_deg`` is the target's HSV hue (0 red, 60 yellow, 120 green, 180 cyan, 240 blue,
-    300 magenta); ``seed_hue_deg`` and ``grow_hue_deg`` are (low, high) signed degrees
-    from it. The defaults are the paper's red ball against grass, sky, dirt and buildings
-    in daylight (they reject brown/orange dirt, skin, shadows and grey). Grey, white and
-    black objects have no hue: colour segmentation cannot find them.
+    A *hue* target (``lab`` empty, the default): ``hue_deg`` is the target's HSV hue (0
+    red, 60 yellow, 120 green, 180 cyan, 240 blue, 300 magenta); ``seed_hue_deg`` and
+    ``grow_hue_deg`` are (low, high) signed degrees from it. The defaults are the paper's
+    red ball against grass, sky, dirt and buildings in daylight (they reject brown/orange
+    dirt, skin, shadows and grey). Grey, white and black have no hue.
+
+    A *Lab* target (``lab = (L*, a*, b*)``): seeds are the pixels within
+    ``seed_max_delta_e`` of that colour (CIE76 ΔE*ab), growth the pixels within
+    ``grow_max_delta_e``; the hue keys are then not used (and may not be set). This finds
+    any colour, grey, white and black included, and also whatever else in view has that
+    colour (a grey building, a white cloud): pick the object's colour as the camera sees
+    its lit side, and check what else matches in your scenes.
     """
+
+    @property
+    def is_lab(self) -> bool:
+        """A Lab target (``lab`` given), not a hue one."""
+        return bool(self.lab)
 
     def __post_init__(self) -> None:
         check_colour(self, "ColourTarget")
@@ -80,6 +112,18 @@ class ColourTarget(_ColourKeys):
 
 def check_colour(c: Any, where: str) -> None:
     """Validate the colour keys of a :class:`ColourTarget` or :class:`DetectionConfig`."""
+    if not isinstance(c.label, str):
+        raise ValueError(f"{where}.label must be a string")
+    if len(c.lab) not in (0, 3):
+        raise ValueError(
+            f"{where}.lab must be three numbers [L*, a*, b*] (or empty), got {c.lab!r}"
+        )
+    if c.lab:
+        _check_lab(c, where)
+        return
+    for name in _LAB_KEYS[1:]:
+        if getattr(c, name) != getattr(_ColourKeys, name):
+            raise ValueError(f"{where}.{name} is a Lab target's key: it needs lab = [L*, a*, b*]")
     for name in ("seed_hue_deg", "grow_hue_deg"):
         lo, hi = getattr(c, name)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
@@ -97,12 +141,36 @@ def check_colour(c: Any, where: str) -> None:
         raise ValueError(f"{where}.grow_min_saturation must not exceed the seed's")
     if c.grow_min_value > c.seed_min_value:
         raise ValueError(f"{where}.grow_min_value must not exceed the seed's")
-    if not isinstance(c.label, str):
-        raise ValueError(f"{where}.label must be a string")
     try:
         hue_plan(c.hue_deg, c.seed_hue_deg, c.grow_hue_deg)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
+
+
+def _check_lab(c: Any, where: str) -> None:
+    """A Lab target's keys: its colour, its tolerances, and no hue keys."""
+    L, a, b = c.lab
+    if not all(isinstance(v, int | float) and math.isfinite(v) for v in (L, a, b)):
+        raise ValueError(f"{where}.lab must be three finite numbers [L*, a*, b*], got {c.lab!r}")
+    if not 0.0 <= L <= 100.0:
+        raise ValueError(f"{where}.lab[0] (L*) must lie in [0, 100], got {L:g}")
+    for i, v in ((1, a), (2, b)):
+        if not -128.0 <= v <= 127.0:
+            raise ValueError(f"{where}.lab[{i}] must lie in [-128, 127], got {v:g}")
+    for name in _LAB_KEYS[1:3]:
+        v = getattr(c, name)
+        if not (math.isfinite(v) and 0.0 < v <= 200.0):
+            raise ValueError(f"{where}.{name} must lie in (0, 200], got {v!r}")
+    k = c.delta_e_lightness_factor
+    if not (math.isfinite(k) and 0.1 <= k <= 10.0):
+        raise ValueError(f"{where}.delta_e_lightness_factor must lie in [0.1, 10], got {k!r}")
+    if c.grow_max_delta_e < c.seed_max_delta_e:
+        raise ValueError(f"{where}.grow_max_delta_e must be at least seed_max_delta_e")
+    for name in _HUE_KEYS:
+        if getattr(c, name) != getattr(_ColourKeys, name):
+            raise ValueError(
+                f"{where}.{name} is a hue target's key: a Lab target (lab given) does not use it"
+            )
 
 
 @dataclass(frozen=True)
@@ -174,6 +242,14 @@ def _target_from_table(table: Any, where: str) -> ColourTarget:
             ):
                 raise ValueError(f"{where}.{key} must be two numbers [low, high], got {value!r}")
             kwargs[key] = (float(value[0]), float(value[1]))
+        elif key == "lab":
+            if (
+                not isinstance(value, list | tuple)
+                or len(value) != 3
+                or not all(_is_number(v) for v in value)
+            ):
+                raise ValueError(f"{where}.lab must be three numbers [L*, a*, b*], got {value!r}")
+            kwargs[key] = tuple(float(v) for v in value)
         else:
             if not _is_number(value):
                 raise ValueError(f"{where}.{key} must be a number, got {value!r}")

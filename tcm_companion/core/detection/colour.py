@@ -144,19 +144,21 @@ class _Target:
         self.pure_level = self.seed_lo[1]
 
     def convert(self, image_bgr: np.ndarray) -> np.ndarray:
-        """The image in the target's colour space (HSV, or OpenCV's 8-bit Lab)."""
-        return np.asarray(cv2.cvtColor(image_bgr, self.code))
+        """The image as the target's masks read it: HSV (H×W×3 uint8) for a hue target,
+        the squared colour difference from the target colour (H×W float32) for a Lab one."""
+        conv = np.asarray(cv2.cvtColor(image_bgr, self.code))
+        return conv if self.lab is None else self.lab.delta_e2(conv)
 
     def seed_mask(self, conv: np.ndarray) -> np.ndarray:
         """255 on seed pixels of a converted image."""
         if self.lab is not None:
-            return self.lab.within(conv, self.lab.seed_de2)
+            return _below(conv, self.lab.seed_de2)
         return np.asarray(cv2.inRange(conv, self.seed_lo, self.seed_hi))
 
     def grow_mask(self, conv: np.ndarray) -> np.ndarray:
         """255 on pixels a blob may grow through."""
         if self.lab is not None:
-            return self.lab.within(conv, self.lab.grow_de2)
+            return _below(conv, self.lab.grow_de2)
         return np.asarray(cv2.inRange(conv, self.grow_lo, self.grow_hi))
 
     def strength(self, conv: np.ndarray) -> np.ndarray:
@@ -166,6 +168,11 @@ class _Target:
         if self.lab is not None:
             return self.lab.closeness(conv)
         return conv[..., 1]
+
+
+def _below(values: np.ndarray, limit: float) -> np.ndarray:
+    """255 where ``values`` (float32) is at most ``limit``, else 0 (uint8)."""
+    return (values <= np.float32(limit)).view(np.uint8) * np.uint8(255)
 
 
 class _LabTarget:
@@ -192,18 +199,15 @@ class _LabTarget:
         self.box_lo = tuple(max(math.floor(v) - 1, 0) for v in lo)
         self.box_hi = tuple(min(math.ceil(v) + 1, 255) for v in hi)
 
-    def delta_e2(self, conv: np.ndarray) -> np.ndarray:
-        """Squared ΔE*ab (float32, H×W) of every pixel of an 8-bit Lab image."""
-        d = (conv.astype(np.float32) - self.centre) * self.scale
+    def delta_e2(self, lab8: np.ndarray) -> np.ndarray:
+        """Squared colour difference (float32, H×W) of every pixel of an 8-bit Lab image."""
+        d = (lab8.astype(np.float32) - self.centre) * self.scale
         return np.asarray(np.einsum("ijk,ijk->ij", d, d))
 
-    def within(self, conv: np.ndarray, limit2: float) -> np.ndarray:
-        return (self.delta_e2(conv) <= np.float32(limit2)).view(np.uint8) * np.uint8(255)
-
-    def closeness(self, conv: np.ndarray) -> np.ndarray:
-        de = np.sqrt(self.delta_e2(conv))
-        out = np.clip(255.0 * (1.0 - de / np.float32(self.grow_de)), 0.0, 255.0)
-        return out.astype(np.uint8)
+    def closeness(self, de2: np.ndarray) -> np.ndarray:
+        """``255·(1 - ΔE/grow ΔE)``, clipped to 0..255 (uint8), from squared ΔE."""
+        out = 255.0 * (1.0 - np.sqrt(de2) / np.float32(self.grow_de))
+        return np.clip(out, 0.0, 255.0).astype(np.uint8)
 
 
 def _disc(radius: int) -> np.ndarray:

@@ -35,6 +35,13 @@ import numpy as np
 
 from .frames import FloatArray, cross3
 
+try:  # the LAPACK gufunc behind np.linalg.solve (see _solve)
+    from numpy.linalg import _umath_linalg
+
+    _SOLVE1 = _umath_linalg.solve1
+except (ImportError, AttributeError):  # pragma: no cover - another numpy layout
+    _SOLVE1 = None
+
 _NAN3 = np.full(3, np.nan)
 
 
@@ -204,9 +211,9 @@ def translation_from_bearings(
     if np.count_nonzero(recede > 0) < np.count_nonzero(recede < 0):
         t = -t
 
-    par_med = math.asin(min(_median(par_t[inl]), 1.0))
+    par_med = math.asin(min(_median_of_copy(par_t[inl]), 1.0))
     # Robust noise level of the residuals (MAD), floored by the configured bearing noise.
-    spread = 1.4826 * math.sqrt(_median(q[inl]))
+    spread = 1.4826 * math.sqrt(_median_of_copy(q[inl]))
     # The statistical σ assumes independent bearing errors; errors shared by many
     # points (flow drift, attitude interpolation, lens model) do not average out and
     # tilt T̂ by about (systematic error / parallax).
@@ -256,8 +263,8 @@ def _suspicious(refined: _Refined, cfg: EgomotionConfig) -> bool:
     _, _, _, q, inl, par_t = refined
     if np.count_nonzero(inl) < 3:
         return True
-    spread = 1.4826 * math.sqrt(_median(q[inl]))
-    return spread > cfg.restart_ratio * _median(par_t[inl])
+    spread = 1.4826 * math.sqrt(_median_of_copy(q[inl]))
+    return spread > cfg.restart_ratio * _median_of_copy(par_t[inl])
 
 
 def _hemisphere(n: int) -> FloatArray:
@@ -351,17 +358,36 @@ def _refine(
     n_iter = max(cfg.max_refine_iterations, n_min)
     lam_eye = lam * np.eye(3)
     dot_row = dot[None, :]
+    # Per-step buffers (the same operations in the same order, written in place).
+    P = np.empty((3, 3 * n))
+    Vm = np.empty((3, n))
+    tmp = np.empty((3, n))
+    sq = np.empty(2 * n)
+    g2 = np.empty(n)
+    q = np.empty(n)
+    w = np.empty(n)
+    JwT = np.empty_like(JT)
     for it in range(n_iter + 1):
         V = _frame_across(t)
-        P = V @ blocks
-        Vm, Vb1, c0 = P[:, :n], P[:, n : 2 * n], P[0, 2 * n :]
+        np.matmul(V, blocks, out=P)
+        Vb1 = P[:, n : 2 * n]
         c1 = Vb1[0]
         if use_rot:
-            # (np.outer(V @ ω, dot), written as the product it is, without its checks)
-            Vm = Vm + (V @ omega)[:, None] * dot_row - Vb1 * (omega @ b0T)
+            # Vm = V·m + (V·ω) (b0·b1) - (V·b1) (b0·ω), as in np.outer but without its checks.
+            np.multiply((V @ omega)[:, None], dot_row, out=tmp)
+            np.add(P[:, :n], tmp, out=Vm)
+            np.multiply(Vb1, omega @ b0T, out=tmp)
+            np.subtract(Vm, tmp, out=Vm)
+        else:
+            Vm[...] = P[:, :n]
         res = Vm[0]
-        g2 = np.maximum(2.0 - c0 * c0 - c1 * c1, 1e-12)  # gain²
-        q = res * res / g2  # r²
+        # gain² = max(2 - c0² - c1², 1e-12): c1 = T̂·b1 and c0 = T̂·b0 are P[0, n:] in a row.
+        np.multiply(P[0, n:], P[0, n:], out=sq)
+        np.subtract(2.0, sq[n:], out=g2)
+        np.subtract(g2, sq[:n], out=g2)
+        np.maximum(g2, 1e-12, out=g2)
+        np.multiply(res, res, out=q)
+        np.divide(q, g2, out=q)  # r²
         if it == n_iter:
             break
         if it < n_min:
@@ -372,21 +398,27 @@ def _refine(
             if np.count_nonzero(inl) < 3:
                 return None
             # cut = min(th_it, 4.685 · 1.4826 · median|r|), all squared.
-            cut2 = min(th_it * th_it, max(_TUKEY_MAD2 * _median(q[inl]), floor2))
-        u = np.minimum(q * (1.0 / cut2), 1.0)
-        w = (1.0 - u) ** 2 / g2
+            cut2 = min(th_it * th_it, max(_TUKEY_MAD2 * _median_of_copy(q[inl]), floor2))
+        # w = (1 - min(r²/cut², 1))² / gain²
+        np.multiply(q, 1.0 / cut2, out=w)
+        np.minimum(w, 1.0, out=w)
+        np.subtract(1.0, w, out=w)
+        np.square(w, out=w)
+        np.divide(w, g2, out=w)
         JT[:2] = Vm[1:]
         if use_rot:
             # d(T̂·m')/dω = b1 × (T̂ × b0) = (b0·b1) T̂ - (b1·T̂) b0
-            np.subtract(t[:, None] * dot_row, b0T * c1, out=JT[2:])
-        JwT = JT * w
+            np.multiply(t[:, None], dot_row, out=JT[2:])
+            np.multiply(b0T, c1, out=tmp)
+            np.subtract(JT[2:], tmp, out=JT[2:])
+        np.multiply(JT, w, out=JwT)
         A = JwT @ JT.T
         g = JwT @ res
         if use_rot:
             A[2:, 2:] += lam_eye
             g[2:] += lam * omega
         try:
-            step = np.linalg.solve(A, -g)
+            step = _solve(A, -g)
         except np.linalg.LinAlgError:
             return None
         t = t + V[1:].T @ step[:2]
@@ -412,6 +444,30 @@ def _median(x: FloatArray) -> float:
         return math.nan
     k = len(x) // 2
     return float(np.partition(x, k)[k])
+
+
+def _median_of_copy(x: np.ndarray) -> float:
+    """:func:`_median` of an array the caller no longer needs (a fresh fancy-indexed
+    copy): partitioned in place, the same value without a second copy."""
+    if not len(x):
+        return math.nan
+    k = len(x) // 2
+    x.partition(k)
+    return float(x[k])
+
+
+def _singular(err: object, flag: int) -> None:
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+def _solve(A: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.linalg.solve(A, b)`` for a float64 ``A`` (n, n) and ``b`` (n,): the same LAPACK
+    call and the same singular-matrix error, without the wrapper's type and shape
+    checks (three quarters of its cost at these sizes)."""
+    if _SOLVE1 is None:  # pragma: no cover - another numpy layout
+        return np.asarray(np.linalg.solve(A, b))
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return np.asarray(_SOLVE1(A, b, signature="dd->d"))
 
 
 def _marginal_info(A: FloatArray) -> FloatArray:

@@ -177,6 +177,8 @@ class FlowTracker:
         # Wrapped columns on each side so that LK windows and pyramid levels near the
         # seam see the other side of the panorama, plus room for a frame's motion.
         self._pad = (cfg.win_size_px // 2 + 8) * (1 << cfg.max_level) if self._wrap else 0
+        self._pad_xy = np.float32(self._pad) * _X_UNIT  # (1, 2): the padding's x shift
+        self._pad_x = self._pad_xy[0]
         self._win = (cfg.win_size_px, cfg.win_size_px)
         self._criteria = (
             cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT,
@@ -396,14 +398,15 @@ class FlowTracker:
         pad = self._pad
         src = p_a.reshape(-1, 1, 2)
         if pad:
-            src = src + np.float32(pad) * _X_UNIT
-        # nextPts doubles as the output buffer; it is read only with the flag.
-        init = src.copy()
+            src = src + self._pad_xy
         flags = 0
-        if guess_b is not None:
+        if guess_b is None:
+            # nextPts doubles as the output buffer; it is read only with the flag.
+            init = src.copy()
+        else:
             init = guess_b.reshape(-1, 1, 2).astype(np.float32)
             if pad:
-                init = init + np.float32(pad) * _X_UNIT
+                init = init + self._pad_xy
             if self._wrap:
                 # The guess must sit on the same side of the seam as the source.
                 d = init[:, 0, 0] - src[:, 0, 0]
@@ -421,13 +424,13 @@ class FlowTracker:
         )
         p_b = dst.reshape(-1, 2)
         if pad:
-            p_b = p_b - np.float32(pad) * _X_UNIT[0]
+            p_b = p_b - self._pad_x
         # The patch difference catches occlusions that the forward–backward check misses
         # on smooth texture, where both directions fall back into the origin's basin.
         ok = (
             status.ravel().astype(bool)
             & (err.ravel() <= self.config.max_patch_error)
-            & np.all(np.isfinite(p_b), axis=1)
+            & np.isfinite(p_b).all(axis=1)
         )
         if self._wrap:
             p_b[:, 0] = np.mod(p_b[:, 0], self._w)

@@ -64,6 +64,22 @@ def median(values: Sequence[float] | np.ndarray) -> float:
     return (float(v[k - 1]) + float(v[k])) / 2.0
 
 
+def median_columns(values: np.ndarray) -> list[float]:
+    """:func:`median` of each column of a 2-D array, to the bit, from one sort along the
+    rows (the looming fit's bearing medians: one call instead of three)."""
+    v = np.sort(np.asarray(values, dtype=np.float64), axis=0)
+    n = len(v)
+    if n == 0:
+        return [math.nan] * v.shape[1]
+    k = n // 2
+    last = v[-1].tolist()
+    if n % 2:
+        mid = v[k].tolist()
+        return [math.nan if x != x else m for x, m in zip(last, mid, strict=True)]
+    lo, hi = v[k - 1].tolist(), v[k].tolist()
+    return [math.nan if x != x else (a + b) / 2.0 for x, a, b in zip(last, lo, hi, strict=True)]
+
+
 def jitter_slack_s(period_s: float) -> float:
     """The allowance for capture-time jitter at frame period ``period_s``: a quarter of
     it (0 when the period is unknown)."""

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .frames import FloatArray
-from .timebase import jitter_slack_s, median
+from .timebase import jitter_slack_s, median, median_columns
 
 
 @dataclass(frozen=True)
@@ -153,8 +153,8 @@ def estimate_ttc(
         ttc = 1.0 / slope
     # Bearing rate from the first and last thirds (robust to one bad bearing).
     n3 = max(1, len(t) // 3)
-    b_first = np.array([median(b[:n3, k]) for k in range(3)])
-    b_last = np.array([median(b[-n3:, k]) for k in range(3)])
+    b_first = np.array(median_columns(b[:n3]))
+    b_last = np.array(median_columns(b[-n3:]))
     dt = median(t[-n3:]) - median(t[:n3])
     if dt <= 0:
         return TTCEstimate(ttc, slope, math.nan, False, rel)

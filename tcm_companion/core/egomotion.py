@@ -30,11 +30,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
 from .frames import FloatArray, cross3
 
+try:  # np.einsum without optimize= is this C function behind a Python dispatch layer
+    from numpy._core.multiarray import c_einsum as _einsum
+except ImportError:  # pragma: no cover - another numpy layout
+    _einsum = np.einsum
+
+_SOLVE1: Any
 try:  # the LAPACK gufunc behind np.linalg.solve (see _solve)
     from numpy.linalg import _umath_linalg
 
@@ -137,7 +144,7 @@ class EgomotionConfig:
 def _unit(v: FloatArray) -> FloatArray:
     """Rows scaled to unit length (zero rows become NaN)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.asarray(v * (1.0 / np.sqrt(np.einsum("ij,ij->i", v, v)))[:, None])
+        return np.asarray(v * (1.0 / np.sqrt(_einsum("ij,ij->i", v, v)))[:, None])
 
 
 def _frame_across(t: FloatArray) -> FloatArray:
@@ -180,8 +187,8 @@ def translation_from_bearings(
     if n < max(cfg.min_inliers, 2):
         return TranslationEstimate.invalid("vision", n)
     m = cross3(b0, b1)
-    dot = np.einsum("ij,ij->i", b0, b1)
-    sin_par = np.sqrt(np.einsum("ij,ij->i", m, m))
+    dot = _einsum("ij,ij->i", b0, b1)
+    sin_par = np.sqrt(_einsum("ij,ij->i", m, m))
 
     t = _ransac(m, sin_par, cfg.ransac_threshold_rad, cfg, rng_seed)
     refined = None if t is None else _refine(t, b0, b1, m, dot, cfg)
@@ -293,7 +300,7 @@ def _grid_start(
     influence of large-parallax outliers, which this least-squares cost cannot reject.
     """
     n = len(m)
-    s2 = np.einsum("ij,ij->i", m, m)
+    s2 = _einsum("ij,ij->i", m, m)
     w = 1.0 / (s2 + max(_median(s2), 1e-12))
     P = (dot[:, None, None] * np.eye(3) - b0[:, :, None] * b1[:, None, :]).reshape(n, 9)
     Pw = P * w[:, None]
@@ -305,7 +312,7 @@ def _grid_start(
     A = (_GRID_OUTER @ Y.T).reshape(k, 3, 3) + lam * np.eye(3)
     g = _GRID_OUTER @ T3.reshape(3, 9).T
     x = np.linalg.solve(A, g[:, :, None])[:, :, 0]
-    cost = _GRID_OUTER @ M2.reshape(9) - np.einsum("ka,ka->k", g, x)
+    cost = _GRID_OUTER @ M2.reshape(9) - _einsum("ka,ka->k", g, x)
     return np.asarray(_GRID[int(np.argmin(cost))])
 
 
@@ -434,7 +441,7 @@ def _refine(
     # Translational parallax: |b0 × (b1 corrected for ω)| = sin of the angle left once
     # the residual rotation is removed (the raw angle includes the rotation error).
     mc = m + dot[:, None] * omega - (b0 @ omega)[:, None] * b1 if use_rot else m
-    par_t = np.sqrt(np.einsum("ij,ij->i", mc, mc))
+    par_t = np.sqrt(_einsum("ij,ij->i", mc, mc))
     return t, omega, _marginal_info(A), q, inl, par_t
 
 
@@ -466,7 +473,9 @@ def _solve(A: FloatArray, b: FloatArray) -> FloatArray:
     checks (three quarters of its cost at these sizes)."""
     if _SOLVE1 is None:  # pragma: no cover - another numpy layout
         return np.asarray(np.linalg.solve(A, b))
-    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+    with np.errstate(
+        call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"
+    ):
         return np.asarray(_SOLVE1(A, b, signature="dd->d"))
 
 
@@ -521,10 +530,10 @@ def _ransac(
     ij = strong[rng.integers(0, strong.size, 2 * h)]
     i, j = ij[:h], ij[h:]
     cand = cross3(m[i], m[j])
-    norm = np.sqrt(np.einsum("ij,ij->i", cand, cand))
+    norm = np.sqrt(_einsum("ij,ij->i", cand, cand))
     # Nearly parallel planes give an ill-conditioned intersection.
     good = norm > 0.05 * sin_par[i] * sin_par[j]
-    if not np.any(good):
+    if not good.any():
         return None
     cand = (cand[good] / norm[good, None]).astype(np.float32)
     th2 = np.float32(threshold_rad**2)

@@ -286,7 +286,7 @@ class FlowTracker:
         img = self._prepare(gray)
         self._start_row(frame_index)
         R = None if R_ned_from_cam is None else np.asarray(R_ned_from_cam, np.float64)
-        if R is not None and not np.all(np.isfinite(R)):
+        if R is not None and not np.isfinite(R).all():
             R = None
 
         n_lost_lk = n_lost_fb = 0

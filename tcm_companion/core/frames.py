@@ -136,7 +136,8 @@ def slerp_rotation(R0: FloatArray, R1: FloatArray, s: float) -> FloatArray:
 def normalize(v: FloatArray) -> FloatArray:
     """Unit vectors along the last axis; zero vectors become NaN."""
     v = np.asarray(v, dtype=np.float64)
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    # np.linalg.norm(v, axis=-1, keepdims=True) for real v, without its dispatch.
+    n = np.sqrt(np.add.reduce(v * v, axis=-1, keepdims=True))
     with np.errstate(invalid="ignore", divide="ignore"):
         return v / np.where(n > 0, n, np.nan)
 
@@ -176,15 +177,25 @@ def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
         return np.array([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0])
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    # The three components written into one array (np.stack's bookkeeping costs more
+    # than the arithmetic at the per-frame sizes).
+    x = a1 * b2
+    out = np.empty((*x.shape, 3))
+    np.subtract(x, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
 
 
 def angle_between(a: FloatArray, b: FloatArray) -> FloatArray:
     """Angle (radians) between vectors along the last axis, stable near 0 and π."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    cross = np.linalg.norm(cross3(a, b), axis=-1)
-    dot = np.sum(a * b, axis=-1)
+    # np.linalg.norm(c, axis=-1) and np.sum(a * b, axis=-1) for real arrays are these
+    # reductions; called directly, without the wrappers (a few calls per object-frame).
+    c = cross3(a, b)
+    cross = np.sqrt(np.add.reduce(c * c, axis=-1))
+    dot = np.add.reduce(a * b, axis=-1)
     return np.arctan2(cross, dot)
 
 

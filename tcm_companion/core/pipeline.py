@@ -529,7 +529,7 @@ class Pipeline:
             return unknown("at image border", interval, interval_s)
         bsm_score = self._bsm_score(ref) if (bsm and self._bsm is not None) else math.nan
         b1 = cur.bearing_ned
-        if self.config.egomotion_rotation_correction and np.any(est.rotation_ned_rad):
+        if self.config.egomotion_rotation_correction and est.rotation_ned_rad.any():
             # Vision measured the attitude error between the two frames: undo it.
             b1 = rotate_by_vector(b1, est.rotation_ned_rad)
         result = classify_pair(

@@ -197,10 +197,11 @@ class Tracker:
         n_t, n_o = len(self.tracks), len(observations)
         assigned_obs: set[int] = set()
         if n_t and n_o:
-            pred = np.stack([tr.predict_bearing_ned(t_us) for tr in self.tracks])
-            obs_b = np.stack([o.bearing_ned for o in observations])
+            # np.array of a list of (3,) arrays: np.stack's (N, 3), without its checks.
+            pred = np.array([tr.predict_bearing_ned(t_us) for tr in self.tracks])
+            obs_b = np.array([o.bearing_ned for o in observations])
             ang = angle_between(pred[:, None, :], obs_b[None, :, :])
-            if not np.all(np.isfinite(ang)):
+            if not np.isfinite(ang).all():
                 # No local-level bearing on one side (a frame without attitude): compare
                 # camera-frame bearings for those pairs.
                 pred_c = np.stack([tr.predict_bearing_cam(t_us) for tr in self.tracks])

@@ -81,7 +81,7 @@ def theil_sen_slope(t_s: FloatArray, y: FloatArray) -> tuple[float, float]:
     i, j = _pairs(len(t))
     dt = t[j] - t[i]
     keep = dt > 0
-    if not np.any(keep):
+    if not keep.any():
         return math.nan, math.nan
     slopes = (v[j] - v[i])[keep] / dt[keep]
     med = median(slopes)

@@ -109,3 +109,40 @@ def test_median_of_copy_equals_median() -> None:
         want = egomotion._median(x)
         got = egomotion._median_of_copy(x.copy())
         assert (math.isnan(want) and math.isnan(got)) or want.hex() == got.hex()
+
+
+def test_classification_replaced_equals_dataclasses_replace() -> None:
+    import dataclasses
+
+    from tcm_companion.core.classify import Classification, _replaced
+
+    c = Classification("unknown", "", disparity=0.25, omega_rad=0.1, interval_frames=25)
+    for changes in (
+        {"state": "moving"},
+        {"reason": "head-on"},
+        {"state": "stationary", "reason": ""},
+    ):
+        got, want = _replaced(c, **changes), dataclasses.replace(c, **changes)
+        assert got == want and repr(got) == repr(want)
+        assert list(vars(got)) == list(vars(want))
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            got.state = "unknown"  # type: ignore[misc]
+
+
+def test_vector_norm_and_rotate_by_vector_equal_numpy() -> None:
+    rng = np.random.default_rng(6)
+    for _ in range(200):
+        v = rng.normal(size=4)
+        assert frames.vector_norm(v).hex() == float(np.linalg.norm(v)).hex()
+        w = rng.normal(size=3) * 10 ** rng.uniform(-8, 0)
+        b = rng.normal(size=(5, 3))
+        theta = float(np.linalg.norm(w))
+        k = w / theta
+        for x in (b, b[0]):  # (N, 3) and one (3,) vector
+            want = (
+                x * np.cos(theta)
+                + frames.cross3(k, x) * np.sin(theta)
+                + np.outer(x @ k, k).reshape(x.shape) * (1 - np.cos(theta))
+            )
+            assert _same(frames.rotate_by_vector(x, w), want)
+    assert frames.vector_norm([3.0, 4.0]) == 5.0  # not an array: numpy's own call

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from .frames import FloatArray, cross3
+from .frames import FloatArray, cross3, vector_norm
 
 try:  # np.einsum without optimize= is this C function behind a Python dispatch layer
     from numpy._core.multiarray import c_einsum as _einsum
@@ -522,7 +522,7 @@ def _ransac(
     n = len(m)
     # Points with parallax at the noise level have an epipolar plane of random
     # orientation: they may vote but must not propose.
-    strong = np.nonzero(sin_par > 3.0 * cfg.bearing_sigma_rad)[0]
+    strong = (sin_par > 3.0 * cfg.bearing_sigma_rad).nonzero()[0]
     if strong.size < 2:
         return None
     rng = np.random.default_rng(rng_seed)
@@ -541,10 +541,10 @@ def _ransac(
     if n > _PREEMPT_POINTS and len(cand) > _PREEMPT_KEEP:
         stride = n // _PREEMPT_POINTS  # the tracker's slot order is spatially mixed
         cost = _msac_cost(cand, np.ascontiguousarray(mT[:, ::stride]), th2)
-        keep = np.argpartition(cost, _PREEMPT_KEEP)[:_PREEMPT_KEEP]
+        keep = cost.argpartition(_PREEMPT_KEEP)[:_PREEMPT_KEEP]
         cand = cand[keep]
     cost = _msac_cost(cand, mT, th2)
-    t = cand[int(np.argmin(cost))].astype(np.float64)
+    t = cand[int(cost.argmin())].astype(np.float64)
     return np.asarray(t / math.sqrt(float(t @ t)))
 
 
@@ -609,7 +609,7 @@ def translation_from_velocities(
 def _from_vector(
     T: FloatArray, noise_m: float, source: str, max_sigma_rad: float
 ) -> TranslationEstimate:
-    mag = float(np.linalg.norm(T))
+    mag = vector_norm(T)
     if not math.isfinite(mag):
         return TranslationEstimate.invalid(source)
     t_hat = T / mag if mag > 0 else _NAN3.copy()
@@ -654,12 +654,12 @@ def fuse(
         return vision
     tv, ta = vision.t_hat_ned, autopilot.t_hat_ned
     sv, sa = max(vision.sigma_rad, 1e-9), max(autopilot.sigma_rad, 1e-9)
-    angle = math.atan2(float(np.linalg.norm(cross3(tv, ta))), float(tv @ ta))
+    angle = math.atan2(vector_norm(cross3(tv, ta)), float(tv @ ta))
     if angle > cfg.fuse_gate * math.hypot(sv, sa):
         return vision if sv < sa else autopilot
     wv, wa = 1.0 / sv**2, 1.0 / sa**2
     t = wv * tv + wa * ta
-    t = t / float(np.linalg.norm(t))
+    t = t / vector_norm(t)
     return TranslationEstimate(
         t_hat_ned=t,
         source="fused",

@@ -291,7 +291,7 @@ class FlowTracker:
 
         n_lost_lk = n_lost_fb = 0
         median_flow = math.nan
-        live = np.nonzero(self._alive)[0]
+        live = self._alive.nonzero()[0]
         if self._prev_img is not None and live.size:
             p0 = self._pts_cv[live]
             guess = self._predict(p0, R) if cfg.predict_rotation else None
@@ -313,7 +313,7 @@ class FlowTracker:
         if live.size:
             n_checked, n_lost_fb = self._forward_backward(img, live, frame_index)
             if n_lost_fb:
-                live = np.nonzero(self._alive)[0]
+                live = self._alive.nonzero()[0]
 
         # Bearings of the surviving tracks: needed for the sky test and the history.
         row = frame_index % cfg.max_history
@@ -502,7 +502,7 @@ class FlowTracker:
                 ok &= np.hypot(err[:, 0], err[:, 1]) <= cfg.fb_threshold_px / self._scale
             bad = due[~ok]
             if bad.size:
-                rows = np.nonzero(self._row_frame > frame_index - fb)[0]
+                rows = (self._row_frame > frame_index - fb).nonzero()[0]
                 self._hist_bearing[np.ix_(rows, bad)] = np.nan
                 self._hist_px[np.ix_(rows, bad)] = np.nan
                 self._kill(bad, frame_index)
@@ -572,7 +572,7 @@ class FlowTracker:
         cell = self._lat_step * math.sqrt(n_seedable / cfg.n_points)
         ncols = math.ceil(self._w / cell) + 1
         nrows = math.ceil(self._h / cell) + 1
-        live = np.nonzero(self._alive)[0]
+        live = self._alive.nonzero()[0]
         live_cell = self._cell_of(self._pts_cv[live], cell, ncols)
         n_culled = 0
         if cfg.cull_cell_fraction > 0 and live.size:
@@ -594,7 +594,7 @@ class FlowTracker:
             return 0, n_culled
         occupied = np.zeros(ncols * nrows, bool)
         occupied[live_cell] = True
-        cand = np.nonzero(seedable)[0]
+        cand = seedable.nonzero()[0]
         cand_cell = self._cell_of(lat[cand], cell, ncols)
         free = ~occupied[cand_cell]
         cand, cand_cell = cand[free], cand_cell[free]
@@ -661,7 +661,7 @@ class FlowTracker:
 
     def _allocate(self, n: int) -> IntArray:
         """Free slots, longest-dead first, so recent dead tracks keep their history."""
-        free = np.nonzero(~self._alive)[0]
+        free = (~self._alive).nonzero()[0]
         slots = free[np.argsort(self._died_at[free], kind="stable")[:n]]
         self._hist_bearing[:, slots] = np.nan
         self._hist_px[:, slots] = np.nan

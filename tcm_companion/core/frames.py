@@ -65,6 +65,14 @@ def mount_rotation(mount_rpy_deg: tuple[float, float, float] | list[float]) -> F
     return rot_from_euler_zyx(float(r), float(p), float(y))
 
 
+def vector_norm(v: FloatArray) -> float:
+    """``float(np.linalg.norm(v))``, to the bit; for a 1-D float64 array (the per-frame
+    case) computed as numpy does, ``sqrt(v·v)``, without the wrapper's checks."""
+    if isinstance(v, np.ndarray) and v.ndim == 1 and v.dtype == np.float64:
+        return math.sqrt(float(v.dot(v)))
+    return float(np.linalg.norm(v))
+
+
 def quat_wxyz_from_rot(R_a_from_b: FloatArray) -> FloatArray:
     """Scalar-first unit quaternion ``(w, x, y, z)``, ``w >= 0``, of a rotation matrix.
 
@@ -91,15 +99,15 @@ def quat_wxyz_from_rot(R_a_from_b: FloatArray) -> FloatArray:
         z = 0.5 * math.sqrt(max(1.0 - R[0, 0] - R[1, 1] + R[2, 2], 0.0))
         f = 0.25 / z
         q = np.array([(R[1, 0] - R[0, 1]) * f, (R[0, 2] + R[2, 0]) * f, (R[1, 2] + R[2, 1]) * f, z])
-    q /= np.linalg.norm(q)
+    q /= vector_norm(q)
     return q if q[0] >= 0 else -q
 
 
 def rot_from_quat_wxyz(q_wxyz: FloatArray) -> FloatArray:
     """Rotation matrix of a scalar-first quaternion (normalised first; NaN if degenerate)."""
     q = np.asarray(q_wxyz, dtype=np.float64)
-    norm = float(np.linalg.norm(q))
-    if not np.isfinite(norm) or norm < 1e-9:
+    norm = vector_norm(q)
+    if not math.isfinite(norm) or norm < 1e-9:
         return np.full((3, 3), np.nan)
     w, x, y, z = q / norm
     return np.array(
@@ -125,7 +133,7 @@ def slerp_quat(q0_wxyz: FloatArray, q1_wxyz: FloatArray, s: float) -> FloatArray
     else:
         sa = math.sin(angle)
         q = (math.sin((1.0 - s) * angle) / sa) * q0 + (math.sin(s * angle) / sa) * q1
-    return np.asarray(q / np.linalg.norm(q))
+    return np.asarray(q / vector_norm(q))
 
 
 def slerp_rotation(R0: FloatArray, R1: FloatArray, s: float) -> FloatArray:
@@ -202,7 +210,7 @@ def angle_between(a: FloatArray, b: FloatArray) -> FloatArray:
 def rotate_by_vector(v: FloatArray, rotvec: FloatArray) -> FloatArray:
     """``exp([ω]×) @ v`` (Rodrigues) for a rotation vector ``ω`` in radians."""
     w = np.asarray(rotvec, dtype=np.float64)
-    theta = float(np.linalg.norm(w))
+    theta = vector_norm(w)
     v = np.asarray(v, dtype=np.float64)
     if theta < 1e-15:
         return v
@@ -210,5 +218,6 @@ def rotate_by_vector(v: FloatArray, rotvec: FloatArray) -> FloatArray:
     return np.asarray(
         v * np.cos(theta)
         + cross3(k, v) * np.sin(theta)
-        + np.outer(v @ k, k).reshape(v.shape) * (1 - np.cos(theta))
+        # np.outer(v @ k, k) is the product of each (v·k) with each k component
+        + ((v @ k)[..., None] * k).reshape(v.shape) * (1 - np.cos(theta))
     )

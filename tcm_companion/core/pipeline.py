@@ -56,7 +56,7 @@ from .egomotion import (
     translation_from_positions,
 )
 from .flow import FlowConfig, FlowTracker
-from .frames import FloatArray, azel_from_bearing, rotate_by_vector
+from .frames import FloatArray, azel_from_bearing, rotate_by_vector, vector_norm
 from .tcm import stationary_range_m, triangle_geometry
 from .telemetry import TelemetryBuffer
 from .timebase import frames_to_cover, jitter_slack_s, median_period_s
@@ -576,7 +576,7 @@ class Pipeline:
         b = np.array([o.bearing_ned for o in near])
         level = robust_level_at(t_s, log_sin, 0.0)
         bearing = np.array([robust_level_at(t_s, b[:, k], 0.0) for k in range(3)])
-        norm = float(np.linalg.norm(bearing))
+        norm = vector_norm(bearing)
         if not (math.isfinite(level) and norm > 0 and math.isfinite(norm)):
             return obs
         alpha = math.asin(min(1.0, math.exp(level)))

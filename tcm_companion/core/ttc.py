@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import FloatArray
+from .frames import FloatArray, vector_norm
 from .timebase import jitter_slack_s, median, median_columns
 
 
@@ -158,7 +158,7 @@ def estimate_ttc(
     dt = median(t[-n3:]) - median(t[:n3])
     if dt <= 0:
         return TTCEstimate(ttc, slope, math.nan, False, rel)
-    cosang = float(np.dot(b_first, b_last) / (np.linalg.norm(b_first) * np.linalg.norm(b_last)))
+    cosang = float(np.dot(b_first, b_last) / (vector_norm(b_first) * vector_norm(b_last)))
     omega = math.acos(max(-1.0, min(1.0, cosang))) / dt
     miss = omega * ttc / math.sin(median(a[-n3:]))
     collision = miss < config.collision_miss_radii and ttc < config.collision_max_ttc_s

@@ -206,13 +206,13 @@ class TelemetryBuffer:
         """Take one sample; returns False (and counts why) if it was refused."""
         if isinstance(sample, AttitudeSample):
             R = sample.R_ned_from_body
-            if not np.all(np.isfinite(R)) or abs(np.linalg.det(R) - 1.0) > 1e-3:
+            if not np.isfinite(R).all() or abs(np.linalg.det(R) - 1.0) > 1e-3:
                 self.health.rejected["attitude not finite or not a rotation"] += 1
                 return False
             series, kind = self._att, "attitude"
         elif isinstance(sample, PositionSample):
             if not (
-                np.all(np.isfinite(sample.pos_ned_m)) and np.all(np.isfinite(sample.vel_ned_mps))
+                np.isfinite(sample.pos_ned_m).all() and np.isfinite(sample.vel_ned_mps).all()
             ):
                 self.health.rejected["position not finite"] += 1
                 return False

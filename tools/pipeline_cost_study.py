@@ -16,11 +16,27 @@ two versions measured under different load stay comparable. It imports whichever
 Frames are the bench's (simulated T90, rendered first and not timed); each method runs
 ``--repeats`` times on a fresh pipeline and every frame's stage times of all repeats are
 pooled before taking the median. One OpenCV thread, as in the bench.
+
+``--digest`` instead prints, per resolution and configuration (methods tcm, ecm, fused
+and bsm; egomotion sources fused, vision and autopilot), a SHA-256 of every field of
+every ``FrameResult`` (floats as hex, stage timings left out), of the flow's live points
+after each frame and of the Fig. 4 disparities hook: two trees whose lines are equal
+give the same results to the bit on these frames. Issue 15's second round (the
+per-frame overhead cut without changing a result; NOTES in docs/decisions.md §8) was
+checked with::
+
+    cd /tmp/wB-base && PYTHONPATH=/tmp/wB-base /work/main/.venv/bin/python \
+        /tmp/wB/tools/pipeline_cost_study.py --digest > /tmp/digest_base.txt
+    cd /tmp/wB && PYTHONPATH=/tmp/wB /work/main/.venv/bin/python \
+        tools/pipeline_cost_study.py --digest > /tmp/digest_new.txt
+    diff /tmp/digest_base.txt /tmp/digest_new.txt   # no output: bit-identical
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
 import json
 import sys
 import time
@@ -123,6 +139,89 @@ def compare(a: dict[str, Any], b: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+DIGEST_CONFIGS = (
+    ("tcm", None),
+    ("ecm", None),
+    ("fused", None),
+    ("tcm", "vision"),
+    ("tcm", "autopilot"),
+    ("bsm", None),
+)
+
+
+def _feed(x: Any, h: Any) -> None:
+    """Every bit of a result into the hash: floats as hex, arrays as their bytes."""
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        for f in dataclasses.fields(x):
+            if f.name != "timings_ms":  # wall-clock stage times: not results
+                h.update(f.name.encode())
+                _feed(getattr(x, f.name), h)
+    elif isinstance(x, float):
+        h.update(x.hex().encode())
+    elif isinstance(x, np.ndarray):
+        h.update(str(x.dtype).encode() + str(x.shape).encode())
+        h.update(np.ascontiguousarray(x).tobytes())
+    elif isinstance(x, np.floating):
+        h.update(float(x).hex().encode())
+    elif isinstance(x, (tuple, list)):
+        h.update(b"[")
+        for y in x:
+            _feed(y, h)
+        h.update(b"]")
+    elif isinstance(x, dict):
+        for k in sorted(x):
+            h.update(repr(k).encode())
+            _feed(x[k], h)
+    else:  # bool, int, str, None, numpy integers and bools
+        h.update(repr(x).encode())
+
+
+def _digest_one(config: Any, sim: Any, frames: list[tuple[int, int, np.ndarray]]) -> str:
+    """SHA-256 (16 hex digits) of one configuration's results on these frames."""
+    _, Pipeline, run_replay, _, _ = _imports()
+
+    class _Frozen:
+        name = sim.name
+        camera = sim.camera
+        frame_times_us = sim.frame_times_us
+        telemetry = sim.telemetry
+        n_frames = len(frames)
+
+        def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
+            yield from frames
+
+    pipe = Pipeline(sim.camera, config.pipeline)
+    sha = hashlib.sha256()
+    for result in run_replay(_Frozen(), config, pipe):
+        _feed(result, sha)
+        sha.update(pipe.flow.live_points_px.tobytes())
+        _feed(pipe.disparities_for_frame_intervals([5, 25]), sha)
+    return sha.hexdigest()[:16]
+
+
+def digest(resolutions: list[tuple[int, int]], n_frames: int) -> list[str]:
+    """One line per resolution and configuration: its results' SHA-256 (16 hex digits)."""
+    AppConfig, _, _, with_method, make_scenario = _imports()
+    cv2.setNumThreads(1)
+    lines = []
+    for w, h in resolutions:
+        duration = (n_frames + 30) / 25.0
+        sim = make_scenario("T90", duration_s=duration, seed=0)
+        sim = make_scenario("T90", camera=sim.camera.scaled(w, h), duration_s=duration, seed=0)
+        frames = list(sim.iter_frames())
+        for method, source in DIGEST_CONFIGS:
+            config = with_method(AppConfig(), method)
+            if source is not None:
+                config = dataclasses.replace(
+                    config,
+                    pipeline=dataclasses.replace(config.pipeline, egomotion_source=source),
+                )
+            sha = _digest_one(config, sim, frames)
+            lines.append(f"{w}x{h}  {method:<5}  {source or 'default':<9}  {sha}")
+            print(lines[-1], flush=True)
+    return lines
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--resolutions", nargs="+", default=["360x220", "900x550"])
@@ -132,7 +231,18 @@ def main() -> int:
     ap.add_argument("--wall", action="store_true", help="wall clock instead of thread CPU")
     ap.add_argument("--json", help="also write the medians here")
     ap.add_argument("--compare", nargs=2, metavar=("BASE_JSON", "NEW_JSON"))
+    ap.add_argument(
+        "--digest",
+        action="store_true",
+        help="instead: a SHA-256 of every result bit per resolution and configuration "
+        "(compare two trees' outputs with diff)",
+    )
     args = ap.parse_args()
+    if args.digest:
+        res_d = [tuple(int(x) for x in r.split("x")) for r in args.resolutions]
+        lines = digest(res_d, args.frames)  # type: ignore[arg-type]
+        print("all:", hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16])
+        return 0
     if args.compare:
         with open(args.compare[0]) as fa, open(args.compare[1]) as fb:
             print(compare(json.load(fa), json.load(fb)))

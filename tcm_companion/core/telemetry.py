@@ -211,9 +211,7 @@ class TelemetryBuffer:
                 return False
             series, kind = self._att, "attitude"
         elif isinstance(sample, PositionSample):
-            if not (
-                np.isfinite(sample.pos_ned_m).all() and np.isfinite(sample.vel_ned_mps).all()
-            ):
+            if not (np.isfinite(sample.pos_ned_m).all() and np.isfinite(sample.vel_ned_mps).all()):
                 self.health.rejected["position not finite"] += 1
                 return False
             series, kind = self._pos, "position"

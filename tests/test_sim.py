@@ -291,3 +291,15 @@ def test_paper_scenarios_render_byte_identical():
             img = renderer.render(t, pos, R, rng=np.random.default_rng(int(t * 1000)))
             got.append(hashlib.sha256(img.tobytes()).hexdigest()[:16])
         assert tuple(got) == expected, name
+
+
+def test_a_flight_too_short_for_the_duration_raises_or_keeps_its_own() -> None:
+    """A collision course ends at contact: asked for 60 s it says how long it can last,
+    and with ``shorter_ok`` (the studies that run one duration over every flight) it keeps
+    its own duration, the same flight as asked for by default."""
+    with pytest.raises(ValueError, match="COLLISION lasts at most"):
+        make_scenario("COLLISION", duration_s=60.0)
+    short = make_scenario("COLLISION", duration_s=60.0, shorter_ok=True)
+    own = make_scenario("COLLISION")
+    assert short.n_frames == own.n_frames < 60 * 25
+    assert make_scenario("T90", duration_s=2.0, shorter_ok=True).n_frames == 50

@@ -120,17 +120,6 @@ def _pct(x: float, signed: bool = False) -> str:
     return f"{100 * x:+.1f}%" if signed else f"{100 * x:.1f}%"
 
 
-def scenario(name: str, duration_s: float | None, seed: int) -> SimulatedScenario:
-    """``make_scenario``; a flight that cannot last ``duration_s`` (a collision course ends
-    at contact) keeps its own duration."""
-    try:
-        return make_scenario(name, duration_s=duration_s, seed=seed)
-    except ValueError as exc:
-        if "lasts at most" not in str(exc):
-            raise
-        return make_scenario(name, seed=seed)
-
-
 def config_for(args: argparse.Namespace) -> AppConfig:
     path = args.config
     if path is None and Path("config.toml").is_file():
@@ -163,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     pooled: list[ObjectFrame] = []
     for name in args.sim:
         t0 = time.monotonic()
-        sim = scenario(name, args.duration, args.seed)
+        sim = make_scenario(name, duration_s=args.duration, seed=args.seed, shorter_ok=True)
         ev = evaluate_scenario(sim, config, with_bsm=False)
         pooled.extend(ev.records)
         tcm = {s.method: s for s in summarize(ev.records, cls)}.get("tcm")

@@ -44,16 +44,6 @@ from tcm_companion.sim import make_scenario
 from tcm_companion.sim.scene.export import SimulatedScenario
 
 
-def scenario(name: str, duration_s: float | None, seed: int) -> SimulatedScenario:
-    """``make_scenario``; a collision course keeps its own (shorter) duration."""
-    try:
-        return make_scenario(name, duration_s=duration_s, seed=seed)
-    except ValueError as exc:
-        if "lasts at most" not in str(exc):
-            raise
-        return make_scenario(name, seed=seed)
-
-
 @dataclass
 class LabelResult:
     """One target label's result in one scenario."""
@@ -165,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
             det_cfg = replace(base, targets=targets)
             name_tol = f"{tol[0]:g} / {tol[1]:g} / k {tol[2]:g}"
         for name in args.sim:
-            sim = scenario(name, args.duration, args.seed)
+            sim = make_scenario(name, duration_s=args.duration, seed=args.seed, shorter_ok=True)
             res = study(sim, ColourDetector(sim.camera, det_cfg), args.step, args.min_px)
             for label, r in res.items():
                 seen = ", ".join(f"#{oid} {k}/{n}" for oid, (k, n) in sorted(r.found.items()))

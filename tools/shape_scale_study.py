@@ -78,12 +78,7 @@ def scenario(
     name: str, duration_s: float | None, seed: int, resolution: str | None
 ) -> SimulatedScenario:
     """``make_scenario`` (a collision course keeps its own, shorter duration)."""
-    try:
-        sim = make_scenario(name, duration_s=duration_s, seed=seed)
-    except ValueError as exc:
-        if "lasts at most" not in str(exc):
-            raise
-        sim = make_scenario(name, seed=seed)
+    sim = make_scenario(name, duration_s=duration_s, seed=seed, shorter_ok=True)
     if resolution:
         w, h = (int(x) for x in resolution.lower().split("x"))
         cam = sim.camera

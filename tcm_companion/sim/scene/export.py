@@ -215,10 +215,20 @@ def make_scenario(
     duration_s: float | None = None,
     seed: int = 0,
     noise: float = 1.0,
+    *,
+    shorter_ok: bool = False,
 ) -> SimulatedScenario:
     """Scenario ``name`` (one of ``SCENARIO_NAMES``) through ``camera`` (default: the
-    paper's 360×220 panorama). ``noise`` scales sensor and telemetry noise (0: none)."""
-    plan = flight_plan(name, duration_s=duration_s, seed=seed)
+    paper's 360×220 panorama). ``noise`` scales sensor and telemetry noise (0: none).
+    A flight that cannot last ``duration_s`` (a collision or head-on course ends at
+    contact) raises ValueError, or with ``shorter_ok`` keeps its own, shorter duration
+    (the studies that run one duration over every flight)."""
+    try:
+        plan = flight_plan(name, duration_s=duration_s, seed=seed)
+    except ValueError as exc:
+        if not (shorter_ok and "lasts at most" in str(exc)):
+            raise
+        plan = flight_plan(name, seed=seed)
     return SimulatedScenario(
         plan, camera if camera is not None else default_camera(), seed=seed, noise=noise
     )

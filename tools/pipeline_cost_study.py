@@ -64,10 +64,8 @@ def _imports() -> tuple[Any, Any, Any, Any, Any]:
     return AppConfig, Pipeline, run_replay, with_method, make_scenario
 
 
-def _time(
-    config: Any, sim: Any, frames: list[tuple[int, int, np.ndarray]], clock: Any
-) -> dict[str, list[float]]:
-    _, Pipeline, run_replay, _, _ = _imports()
+def _frozen(sim: Any, frames: list[tuple[int, int, np.ndarray]]) -> Any:
+    """``sim`` with its frames rendered once (``frames``), for replay after replay."""
 
     class _Frozen:
         name = sim.name
@@ -79,9 +77,17 @@ def _time(
         def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
             yield from frames
 
+    return _Frozen()
+
+
+def _time(
+    config: Any, sim: Any, frames: list[tuple[int, int, np.ndarray]], clock: Any
+) -> dict[str, list[float]]:
+    _, Pipeline, run_replay, _, _ = _imports()
+
     pipe = Pipeline(sim.camera, config.pipeline, clock)
     rows: dict[str, list[float]] = {s: [] for s in STAGES}
-    for k, result in enumerate(run_replay(_Frozen(), config, pipe)):
+    for k, result in enumerate(run_replay(_frozen(sim, frames), config, pipe)):
         if k >= WARMUP_FRAMES:
             for s in STAGES:
                 rows[s].append(result.timings_ms.get(s, 0.0))
@@ -149,13 +155,13 @@ DIGEST_CONFIGS = (
 )
 
 
-def _feed(x: Any, h: Any) -> None:
+def feed_result(x: Any, h: Any) -> None:
     """Every bit of a result into the hash: floats as hex, arrays as their bytes."""
     if dataclasses.is_dataclass(x) and not isinstance(x, type):
         for f in dataclasses.fields(x):
             if f.name != "timings_ms":  # wall-clock stage times: not results
                 h.update(f.name.encode())
-                _feed(getattr(x, f.name), h)
+                feed_result(getattr(x, f.name), h)
     elif isinstance(x, float):
         h.update(x.hex().encode())
     elif isinstance(x, np.ndarray):
@@ -166,12 +172,12 @@ def _feed(x: Any, h: Any) -> None:
     elif isinstance(x, (tuple, list)):
         h.update(b"[")
         for y in x:
-            _feed(y, h)
+            feed_result(y, h)
         h.update(b"]")
     elif isinstance(x, dict):
         for k in sorted(x):
             h.update(repr(k).encode())
-            _feed(x[k], h)
+            feed_result(x[k], h)
     else:  # bool, int, str, None, numpy integers and bools
         h.update(repr(x).encode())
 
@@ -180,22 +186,12 @@ def _digest_one(config: Any, sim: Any, frames: list[tuple[int, int, np.ndarray]]
     """SHA-256 (16 hex digits) of one configuration's results on these frames."""
     _, Pipeline, run_replay, _, _ = _imports()
 
-    class _Frozen:
-        name = sim.name
-        camera = sim.camera
-        frame_times_us = sim.frame_times_us
-        telemetry = sim.telemetry
-        n_frames = len(frames)
-
-        def iter_frames(self) -> Iterator[tuple[int, int, np.ndarray]]:
-            yield from frames
-
     pipe = Pipeline(sim.camera, config.pipeline)
     sha = hashlib.sha256()
-    for result in run_replay(_Frozen(), config, pipe):
-        _feed(result, sha)
+    for result in run_replay(_frozen(sim, frames), config, pipe):
+        feed_result(result, sha)
         sha.update(pipe.flow.live_points_px.tobytes())
-        _feed(pipe.disparities_for_frame_intervals([5, 25]), sha)
+        feed_result(pipe.disparities_for_frame_intervals([5, 25]), sha)
     return sha.hexdigest()[:16]
 
 

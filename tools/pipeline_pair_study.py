@@ -36,6 +36,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+# The result digest of the cost study (tools/ is this script's directory, on sys.path).
+from pipeline_cost_study import feed_result
+
 STAGES = ("telemetry", "detect", "flow", "track", "classify", "total")
 WARMUP_FRAMES = 30
 BASE_PACKAGE = "_pair_base_core"
@@ -64,30 +67,9 @@ def _as_class(obj: Any, cls: type) -> Any:
     return new
 
 
-def _feed(x: Any, h: Any) -> None:
-    """Every bit of a result into the hash (floats as hex; stage timings left out)."""
-    if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        for f in dataclasses.fields(x):
-            if f.name != "timings_ms":
-                h.update(f.name.encode())
-                _feed(getattr(x, f.name), h)
-    elif isinstance(x, float):
-        h.update(x.hex().encode())
-    elif isinstance(x, np.ndarray):
-        h.update(str(x.dtype).encode() + str(x.shape).encode())
-        h.update(np.ascontiguousarray(x).tobytes())
-    elif isinstance(x, np.floating):
-        h.update(float(x).hex().encode())
-    elif isinstance(x, (tuple, list)):
-        for y in x:
-            _feed(y, h)
-    else:
-        h.update(repr(x).encode())
-
-
 def _digest(result: Any) -> bytes:
     h = hashlib.sha256()
-    _feed(result, h)
+    feed_result(result, h)
     return h.digest()
 
 

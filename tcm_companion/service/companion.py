@@ -427,7 +427,7 @@ class Companion:
         # The live box feed: one input for every camera's boxes, judged alive only (a
         # detector may run at any rate).
         LiveBoxes.check(config, self.cameras)
-        if config.box_feed or config.box_tracking:
+        if LiveBoxes.configured(config):
             specs.append(
                 InputSpec(BOX_FEED, max(rates), config.box_feed_timeout_us, min_rate_fraction=0.0)
             )

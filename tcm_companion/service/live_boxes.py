@@ -81,11 +81,16 @@ class LiveBoxes:
         self.counts = counts
         self.inputs = inputs
         self.endpoint = endpoint
-        self.enabled = bool(config.box_feed) or config.box_tracking
+        self.enabled = self.configured(config)
         self._last_mono_us: int | None = None  # the newest well-formed message
         self._newest_capture_mono_us: int | None = None  # of any frame delivered
         self._bad_reported = 0
         self._logged_mono_us: int | None = None
+
+    @staticmethod
+    def configured(config: DaemonConfig) -> bool:
+        """Whether ``config`` asks for a live feed (``box_feed`` or ``box_tracking``)."""
+        return bool(config.box_feed) or config.box_tracking
 
     @staticmethod
     def check(config: DaemonConfig, cameras: Sequence[CameraView]) -> None:
@@ -95,7 +100,7 @@ class LiveBoxes:
                 f"box_tracking_camera {config.box_tracking_camera} is not a camera"
                 f" (0..{len(cameras) - 1})"
             )
-        if config.box_feed or config.box_tracking:
+        if LiveBoxes.configured(config):
             for c in cameras:
                 if not isinstance(c.pipeline.detector, BoxesDetector):
                     raise ValueError('a box feed needs [detection] backend = "boxes"')

@@ -252,3 +252,26 @@ def test_histories_cover_the_interval_at_60_fps() -> None:
     assert pipe.tracker.config.history_s >= 2.0 + cfg.classifier.interval_tolerance_s
     # Bounded: the default keeps at most ~1.1 s at 60 fps (and the Fig. 4 study's 48).
     assert Pipeline(default_camera())._frames.maxlen == max(48, math.ceil(1.08 * 60) + 2)
+
+
+def test_a_slow_camera_s_looming_fit_reaches_back_to_six_samples() -> None:
+    """At 5 fps the 0.48-s looming window holds 3 observations; the pipeline gives the fit
+    the newest six (1 s) from the track, and the time to contact is the true one."""
+    from collections import deque
+
+    from tcm_companion.core.classify import Classification
+    from tcm_companion.core.tracking import Observation, Track
+    from tcm_companion.sim.scene.scenarios import default_camera
+
+    fps = 5.0
+    pipe = Pipeline(default_camera())
+    pipe._slack_s = 0.25 / fps
+    pipe._classify = lambda track, cache, t_us=0: Classification("unknown", "warm-up")  # type: ignore[method-assign]
+    track = Track(1, deque(maxlen=1000), history_us=2_000_000)
+    b = np.array([1.0, 0.0, 0.0])
+    for i in range(8):
+        t_us = round(i * 1e6 / fps)
+        alpha = math.asin(0.375 / (14.0 - 2.0 * i / fps))
+        track.add(Observation(i, t_us, b, b, b, alpha, (0.0, 0.0)))
+    obj = pipe._object_result(track, t_us, {})
+    assert obj.ttc_s == pytest.approx((14.0 - 2.0 * 7 / fps) / 2.0, rel=0.02)

@@ -112,8 +112,30 @@ def test_too_short_a_span_gives_no_estimate() -> None:
     # 25 Hz: 5 samples span 0.16 s (< min_span_s); 6 span 0.2 s.
     assert math.isnan(estimate_ttc(*approach(10.0, 2.0, 5)[:3], cfg).ttc_s)
     assert math.isfinite(estimate_ttc(*approach(10.0, 2.0, 6)[:3], cfg).ttc_s)
-    # 5 fps: two samples are too few, three (0.4 s) enough.
-    assert math.isnan(estimate_ttc(*approach(10.0, 2.0, 2, fps=5.0)[:3], cfg).ttc_s)
-    assert math.isfinite(estimate_ttc(*approach(10.0, 2.0, 3, fps=5.0)[:3], cfg).ttc_s)
+    # 5 fps: the window holds 3 samples, and the fit takes the newest 6 (1 s) instead:
+    # five are too few, six enough.
+    assert math.isnan(estimate_ttc(*approach(10.0, 2.0, 5, fps=5.0)[:3], cfg).ttc_s)
+    assert math.isfinite(estimate_ttc(*approach(10.0, 2.0, 6, fps=5.0)[:3], cfg).ttc_s)
     with pytest.raises(ValueError, match="min_span_s"):
         TTCConfig(window_s=0.2, min_span_s=0.3)
+
+
+def test_a_slow_camera_fits_six_samples_not_the_few_in_the_window() -> None:
+    """Seen on real ArduCopter SITL with the companion starved to ~8 fps: 4 samples in the
+    0.48-s window, a ball 14 m away, and the looming fit read TTC 2.8 s for a true 7.3 s at
+    75 % confidence (a brake 14 m short). Four samples whose radius noise (a few percent
+    of a 1.5-px radius) happens to line up make a steep, tight slope; the newest six
+    (0.75 s at 8 fps) do not, and on a clean approach they give the true TTC."""
+    fps = 8.0
+    t = np.arange(6) / fps
+    d = 14.1 - 1.93 * t
+    alpha = np.arcsin(0.375 / d)
+    b = np.tile([1.0, 0.0, 0.0], (6, 1))
+    noisy = alpha * (1.0 + np.array([0.03, 0.02, -0.03, -0.01, 0.02, 0.05]))
+    window_only = estimate_ttc(t, noisy, b, TTCConfig(min_samples=3))
+    assert window_only.ttc_s < 3.0 and window_only.collision_course  # the false alarm
+    assert window_only.confidence > 0.9
+    six = estimate_ttc(t, noisy, b)
+    assert not (six.ttc_s < 3.0) and six.confidence < 0.5
+    clean = estimate_ttc(t, alpha, b)
+    assert clean.ttc_s == pytest.approx(d[-1] / 1.93, rel=0.01)

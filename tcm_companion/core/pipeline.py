@@ -621,11 +621,15 @@ class Pipeline:
     ) -> ObjectResult:
         obs = track.last
         cls = self._classify(track, cache, t_us)
-        # The looming fit: observations captured within window_s of this frame.
+        # The looming fit: observations captured within window_s of this frame, and at
+        # least the newest min_samples (estimate_ttc takes the same ones).
         window_us = round(self.config.ttc.window_s * 1e6) - round(self._slack_s * 1e6)
-        hist = list(
-            itertools.takewhile(lambda o: t_us - o.t_us < window_us, reversed(track.history))
-        )
+        least = self.config.ttc.min_samples
+        hist = [
+            o
+            for k, o in enumerate(reversed(track.history))
+            if k < least or t_us - o.t_us < window_us
+        ]
         hist.reverse()
         if not obs.has_attitude:
             hist = []  # no time to contact from a frame without attitude

@@ -28,12 +28,16 @@ from .timebase import jitter_slack_s, median, median_columns
 @dataclass(frozen=True)
 class TTCConfig:
     # The looming fit uses the samples captured less than window_s before the newest
-    # (12 frames at 25 Hz).
+    # (12 frames at 25 Hz), and at least the newest min_samples: a slower camera's fit
+    # spans longer (6 samples: 0.6 s at 10 fps, 1 s at 5 fps) rather than resting on a
+    # few points.
     window_s: float = 0.48
-    # No estimate from samples spanning less than min_span_s (6 frames at 25 Hz) or fewer
-    # than min_samples (a 5-fps camera still has 3 in the window).
+    # No estimate from samples spanning less than min_span_s (6 frames at 25 Hz) or from
+    # fewer than min_samples. The fit's error comes from the spread of its pairwise
+    # slopes, which for 3 to 5 points can be tiny by chance: a companion starved to ~8 fps
+    # read TTC 2.8 s for a true 7.3 s, at 75 % confidence, from 4 points.
     min_span_s: float = 0.2
-    min_samples: int = 3
+    min_samples: int = 6
     max_ttc_s: float = 30.0  # slower looming than this counts as "not approaching"
     min_significance: float = 2.0  # slope must exceed this many of its own spreads
     collision_miss_radii: float = 4.0  # predicted miss within this many object radii
@@ -118,7 +122,8 @@ def estimate_ttc(
     ``t_s`` (N,) capture times in seconds, increasing, ``alpha_rad`` (N,) angular radii,
     ``bearing_ned`` (N, 3) unit bearings in the local-level frame; only the samples
     captured less than ``config.window_s`` before the last are used (to the nearest frame:
-    within a quarter frame period of the window's start counts as outside).
+    within a quarter frame period of the window's start counts as outside), or the newest
+    ``config.min_samples`` usable ones when the window holds fewer.
     """
     t = np.asarray(t_s, dtype=np.float64)
     a = np.asarray(alpha_rad, dtype=np.float64)
@@ -129,10 +134,14 @@ def estimate_ttc(
     steps = np.diff(t)
     steps = steps[np.isfinite(steps) & (steps > 0)]
     slack_s = jitter_slack_s(median(steps) if len(steps) else math.nan)
-    ok = np.isfinite(t) & (t[-1] - t < config.window_s - slack_s)
-    ok &= np.isfinite(a) & (a > 0)
+    usable = np.isfinite(t) & np.isfinite(a) & (a > 0)
+    ok = usable & (t[-1] - t < config.window_s - slack_s)
     if ok.sum() < config.min_samples:
-        return nothing
+        newest = np.flatnonzero(usable)[-config.min_samples :]
+        if len(newest) < config.min_samples:
+            return nothing
+        ok = np.zeros_like(usable)
+        ok[newest] = True
     t, a, b = t[ok], a[ok], b[ok]
     if t[-1] - t[0] < config.min_span_s - slack_s:
         return nothing

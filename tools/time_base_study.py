@@ -171,6 +171,21 @@ def pool(parts: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def headon_ttc_table() -> None:
+    """HEADON's time-to-contact error per rate with this tree's core, seeds 0-2 pooled."""
+    errors: dict[str, list[float]] = defaultdict(list)
+    for seed in (0, 1, 2):
+        for label, c in worker("HEADON", seed, None).items():
+            errors[label] += c["ttc_err"]
+    print("HEADON time to contact: median / p90 |error| (true τ <= 10 s), seeds 0-2 pooled")
+    for label, _ in RATES:
+        err = np.array(errors[label])
+        print(
+            f"{label:<21}{100 * np.median(err):5.1f}% / {100 * np.percentile(err, 90):5.1f}%"
+            f" ({len(err):>4} rows)"
+        )
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--worker":
         name, seed, dur = sys.argv[2], int(sys.argv[3]), sys.argv[4]
@@ -183,7 +198,15 @@ def main() -> None:
     ap.add_argument("--repo", type=Path, default=ROOT, help="git repository of --old-commit")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", type=Path, help="also write the raw counts here")
+    ap.add_argument(
+        "--ttc-only",
+        action="store_true",
+        help="only the HEADON time-to-contact table, this tree alone (seeds 0-2, ~1 min)",
+    )
     args = ap.parse_args()
+    if args.ttc_only:
+        headon_ttc_table()
+        return
     duration = 15.0 if args.quick else 30.0
     seeds = (0, 1) if args.quick else (0, 1, 2)
     names = ["TS", "T45", "T90"] + (["TWO"] if args.more else [])

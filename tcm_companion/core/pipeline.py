@@ -627,8 +627,10 @@ class Pipeline:
         least = self.config.ttc.min_samples
         hist = [
             o
-            for k, o in enumerate(reversed(track.history))
-            if k < least or t_us - o.t_us < window_us
+            for _, o in itertools.takewhile(
+                lambda ko: ko[0] < least or t_us - ko[1].t_us < window_us,
+                enumerate(reversed(track.history)),
+            )
         ]
         hist.reverse()
         if not obs.has_attitude:

@@ -14,14 +14,16 @@ targets each find their own object and nothing of the other's.
 from __future__ import annotations
 
 import math
+import tomllib
 
 import cv2
 import numpy as np
 import pytest
 
-from tcm_companion.config import ConfigError, config_from_dict
+from tcm_companion.config import ConfigError, config_from_dict, config_to_toml
 from tcm_companion.core.camera import CameraModel
 from tcm_companion.core.detection import ColourDetector, ColourTarget, Detection, DetectionConfig
+from tcm_companion.core.detection.settings import _HUE_KEYS, _LAB_KEYS
 
 from .test_detection import (
     CAMERAS,
@@ -88,6 +90,27 @@ def test_lab_targets_from_the_config_file() -> None:
     # The flat keys describe one Lab target too.
     flat = config_from_dict({"detection": {"lab": [80, 0, 0], "label": "box"}})
     assert flat.pipeline.detection.colour_targets[0].lab == (80.0, 0.0, 0.0)
+
+
+def test_config_check_prints_each_target_s_own_keys() -> None:
+    """A Lab target's table holds no hue key and a hue target's no Lab key (they printed
+    every key of both kinds, the unused kind at its defaults), and the text loads back."""
+    cfg = config_from_dict(
+        {
+            "detection": {
+                "targets": [
+                    {"label": "ball", "hue_deg": 10},
+                    {"label": "drone", "lab": [22, 0, -1], "delta_e_lightness_factor": 1},
+                ]
+            }
+        }
+    )
+    text = config_to_toml(cfg)
+    ball, drone = tomllib.loads(text)["pipeline"]["detection"]["targets"]
+    assert set(ball) == {"label", *_HUE_KEYS} and ball["hue_deg"] == 10.0
+    assert set(drone) == {"label", *_LAB_KEYS} and drone["lab"] == [22.0, 0.0, -1.0]
+    assert drone["delta_e_lightness_factor"] == 1.0
+    assert config_from_dict(tomllib.loads(text)) == cfg
 
 
 @pytest.mark.parametrize(
@@ -170,6 +193,26 @@ def test_grey_and_white_balls_are_found_at_their_size(
         assert dets[0].label == grey and 0.0 < dets[0].score <= 1.0
         assert not dets[0].touches_border
         assert ColourDetector(cam).detect(img) == []
+
+
+def test_a_black_object_is_not_the_lens_s_black_surround() -> None:
+    """A black ball (its pixels at or below ``black_level``) in the middle of the frame
+    does not touch the border: the surround check counts black pixels outside the blob
+    only (it flagged every detection of a black object). A black object against a
+    fisheye's black surround merges with it, as any object does with a background of
+    its own colour."""
+    cam = CAMERAS["pinhole"]
+    albedo = (1.0, 1.0, 1.0)
+    ball = Ball(ball_at(10.0, 10.0, 4.0).centre_cam, math.radians(4.0), albedo)
+    img = frontlit(cam, ball, seed=0, background=sky_background)
+    x, y = (int(v) for v in cam.pixel_from_bearing_cam(ball.centre_cam))
+    assert img[y - 2 : y + 3, x - 2 : x + 3].max() <= DetectionConfig().black_level
+    target = ColourTarget(label="black", lab=sampled_lab(cam, albedo))
+    assert target.lab[0] < 3.0
+    dets = ColourDetector(cam, DetectionConfig(targets=(target,))).detect(img)
+    assert len(dets) == 1
+    assert abs(pixel_errors(cam, dets[0], ball)[0]) < 0.03
+    assert not dets[0].touches_border
 
 
 def test_a_lab_target_rejects_other_colours_and_the_sky() -> None:

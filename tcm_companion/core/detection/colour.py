@@ -504,7 +504,10 @@ class ColourDetector(DetectorBackend):
         gx0 = roi.x0 + x
         shift = (gx0 // self._w) * self._w if self._wrap else 0
         bbox = (gx0 - shift, roi.y0 + y, gx0 - shift + w, roi.y0 + y + h)
+        # The lens's black surround: black pixels outside the blob (a black object's own
+        # pixels are as dark; a hue target's never are, its growth has a minimum value).
         black = cv2.inRange(img_roi[by0:by1, bx0:bx1], (0, 0, 0), (cfg.black_level,) * 3)
+        black[mask > 0] = 0
         border = self._take(self._border, sub) | _u8(cv2.dilate(black, _K3))
         touches = bool(cv2.countNonZero(border & mask))
         # Score: mean strength (0..1) of the grown pixels (a hue target: HSV saturation).

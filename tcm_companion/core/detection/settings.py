@@ -106,6 +106,13 @@ class ColourTarget(_ColourKeys):
         """A Lab target (``lab`` given), not a hue one."""
         return bool(self.lab)
 
+    def to_dict(self) -> dict[str, Any]:
+        """The target's own keys, as a ``[[detection.targets]]`` table: its label and
+        either the hue keys or the Lab ones (the other kind's are not used, and a Lab
+        target may not set the hue keys), so ``config check`` prints what is in force."""
+        names = ("label", *(_LAB_KEYS if self.is_lab else _HUE_KEYS))
+        return {name: getattr(self, name) for name in names}
+
     def __post_init__(self) -> None:
         check_colour(self, "ColourTarget")
 

@@ -55,6 +55,43 @@ def _proc_sample(pid: int) -> tuple[float, int] | None:
     return cpu, rss
 
 
+def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    """Each thread of ``pid``: ``{tid: (name, CPU seconds user+system)}`` (empty if gone).
+    The name is the thread's ``comm``, which the daemon's threads set to their
+    ``threading`` name (cut to 15 bytes: :func:`~tcm_companion.threads.name_os_thread`);
+    the process's first thread is ``main``."""
+    out: dict[int, tuple[str, float]] = {}
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return out
+    for task in tasks:
+        try:
+            stat = (task / "stat").read_text()
+            name = (task / "comm").read_text().strip()
+        except OSError:  # the thread ended between the listing and the read
+            continue
+        fields = stat[stat.rindex(")") + 2 :].split()
+        tid = int(task.name)
+        out[tid] = ("main" if tid == pid else name, (int(fields[11]) + int(fields[12])) / TICKS)
+    return out
+
+
+def thread_shares(
+    before: dict[int, tuple[str, float]], after: dict[int, tuple[str, float]], wall_s: float
+) -> dict[str, float]:
+    """CPU per thread name between two :func:`_thread_cpu` readings, in % of one core
+    over ``wall_s``; threads of one name are summed, the busiest first. A thread that
+    started in between counts from zero; one that ended in between is not counted."""
+    shares: dict[str, float] = {}
+    if not wall_s > 0.0:
+        return shares
+    for tid, (name, cpu) in after.items():
+        used = cpu - before.get(tid, (name, 0.0))[1]
+        shares[name] = shares.get(name, 0.0) + 100.0 * used / wall_s
+    return dict(sorted(shares.items(), key=lambda kv: kv[1], reverse=True))
+
+
 class CpuQuotaError(RuntimeError):
     """The CPU quota cannot be set up here (no cgroup cpu controller, or no permission)."""
 
@@ -273,6 +310,11 @@ def _run_daemon_bench(
         preexec_fn=quota.join if quota is not None else None,
     )
     samples: list[tuple[float, float, int]] = []  # (wall s, cpu s, rss bytes)
+    # Per-thread CPU at the first steady sample, and each thread's latest reading since
+    # (a thread that ends before the daemon, as they all do on the way out, keeps its last).
+    threads_first: dict[int, tuple[str, float]] = {}
+    threads_last: dict[int, tuple[str, float]] = {}
+    threads_wall = [0.0, 0.0]
     t0 = time.monotonic()
     try:
         next_report = t0 + 10.0
@@ -280,6 +322,12 @@ def _run_daemon_bench(
             sample = _proc_sample(daemon.pid)
             if sample is not None and sample[1] > 0:  # an exited (zombie) process has no RSS
                 samples.append((time.monotonic() - t0, *sample))
+                per_thread = _thread_cpu(daemon.pid)
+                if per_thread and samples[-1][0] >= 5.0:
+                    if not threads_first:
+                        threads_first, threads_wall[0] = per_thread, samples[-1][0]
+                    threads_last.update(per_thread)
+                    threads_wall[1] = samples[-1][0]
             if time.monotonic() >= next_report and samples:
                 w, c, r = samples[-1]
                 out(f"  {w:5.0f} s: RSS {r / 2**20:6.1f} MiB, CPU so far {c:6.1f} s")
@@ -314,6 +362,9 @@ def _run_daemon_bench(
         "rss_mib_max": max(rss) if rss else float("nan"),
         "log_bytes": log_bytes,
         "log_gb_per_hour": log_bytes / 1e9 * 3600.0 / max(duration_s, 1e-9),
+        "cpu_pct_by_thread": thread_shares(
+            threads_first, threads_last, threads_wall[1] - threads_wall[0]
+        ),
         "flight_log_writer": measure_flight_log(frames),
         **summary,
     }
@@ -336,6 +387,9 @@ def print_daemon_bench(result: dict[str, Any], out: Callable[[str], Any] = print
         f"  p99 {r['latency_p99_ms']:.2f}  max {r['latency_max_ms']:.2f}   (target p99 <= 10)"
     )
     out(f"  CPU: {r['cpu_pct_of_one_core']:.1f}% of one core   (target <= 25%)")
+    by_thread = r.get("cpu_pct_by_thread") or {}
+    if by_thread:
+        out("  CPU by thread: " + ", ".join(f"{k} {v:.1f}%" for k, v in by_thread.items()))
     q = r.get("cpu_quota")
     if q is not None:
         out(

@@ -34,7 +34,9 @@ import contextlib
 import dataclasses
 import logging
 import sys
+import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import cv2
@@ -71,6 +73,21 @@ class ServiceConfig(Protocol):
 
     @property
     def mavlink(self) -> MavlinkSettings: ...
+
+
+def name_os_threads() -> None:
+    """Give every Python thread but the main one its ``threading`` name as its OS name
+    (``/proc/self/task/<tid>/comm``, at most 15 bytes), so ``top -H``, ``ps -L`` and
+    ``bench --daemon`` can tell the camera threads and the flight-log writer apart
+    (Python 3.11 leaves them all named after the process). Silent where there is no
+    such file (not Linux)."""
+    for thread in threading.enumerate():
+        tid = thread.native_id
+        if tid is None or thread is threading.main_thread():
+            continue
+        name = thread.name.encode("utf-8")[:15].decode("utf-8", errors="ignore")
+        with contextlib.suppress(OSError):
+            Path(f"/proc/self/task/{tid}/comm").write_text(name)
 
 
 class Daemon:
@@ -280,6 +297,7 @@ class Daemon:
                 self.readers.append(reader)
                 reader.start()
                 stack.callback(reader.stop)
+            name_os_threads()
             stack.callback(notifier.stopping)
             notifier.ready(f"running: {len(self.camera_inputs)} camera(s), link {transport.url}")
             log.info("running: %d camera(s), link %s", len(self.camera_inputs), transport.url)

@@ -47,7 +47,7 @@ from ..io.cameras.base import Frame
 from ..io.transports import Transport, TransportError, open_transport
 from ..mavlink.endpoint import CompanionEndpoint
 from .box_feed import open_box_feed
-from .companion import Companion, DaemonConfig, FrameProcessed
+from .companion import Companion, DaemonConfig
 from .endpoint_setup import MavlinkSettings, make_endpoint, persist
 from .plumbing import CameraInput, DaemonSummary, NotifierLike, Plumbing
 
@@ -194,10 +194,9 @@ class Daemon:
         now = clock.now_us()
         outputs = plumbing.process_due(now)
         done = clock.now_us()
-        plumbing.processed(outputs, done)
-        await self._write(transport, plumbing.bytes_to_send(done))
-        if any(isinstance(o, FrameProcessed) for o in outputs):
-            plumbing.sent(outputs, done, clock.now_us())
+        data = plumbing.take_bytes()
+        await self._write(transport, data)
+        plumbing.written(outputs, data, done, clock.now_us())
 
     async def _main(self, transport: Transport) -> None:
         comp = self.companion

@@ -223,8 +223,8 @@ class Plumbing:
         return comp.process_due(now_mono_us)
 
     def processed(self, outputs: Sequence[Output], done_mono_us: int) -> None:
-        """Handle ``outputs`` before their bytes are written; ``done_mono_us``: when the
-        turn's work (the pipeline) finished."""
+        """Handle ``outputs``; ``done_mono_us``: when the turn's work (the pipeline)
+        finished. A turn's outputs go through :meth:`written`, once its bytes are out."""
         for out in outputs:
             if isinstance(out, FrameProcessed):
                 if out.result is not None and self.flight_log is not None:
@@ -248,6 +248,25 @@ class Plumbing:
         if data and self.flight_log is not None:
             self.flight_log.log_mavlink("out", now_mono_us, data)
         return data
+
+    def take_bytes(self) -> bytes:
+        """A turn's bytes for the link, to be written at once; :meth:`written` then logs
+        them and handles the turn's outputs."""
+        return self.companion.data_to_send()
+
+    def written(
+        self, outputs: Sequence[Output], data: bytes, done_mono_us: int, sent_mono_us: int
+    ) -> None:
+        """A turn's bytes ``data`` (from :meth:`take_bytes`) went out at ``sent_mono_us``:
+        log them as written when the work was ``done_mono_us``, then handle the outputs
+        (:meth:`processed`: flight-log records, parameters saved, health) and the
+        latencies (:meth:`sent`). After the write, not before: each record queued for the
+        flight log wakes its writer thread, which takes the GIL, and saving parameters
+        touches the disk; neither may delay what the autopilot is waiting for."""
+        if data and self.flight_log is not None:
+            self.flight_log.log_mavlink("out", done_mono_us, data)
+        self.processed(outputs, done_mono_us)
+        self.sent(outputs, done_mono_us, sent_mono_us)
 
     def sent(self, outputs: Sequence[Output], done_mono_us: int, sent_mono_us: int) -> None:
         """The turn's bytes were written at ``sent_mono_us``: latencies and ``on_result``."""

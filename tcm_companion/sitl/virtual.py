@@ -180,10 +180,9 @@ class VirtualSitl:
         outputs = plumbing.process_due(now)
         worked = any(isinstance(o, FrameProcessed) for o in outputs)
         done = now + (self.model.process_us if worked else 0)
-        plumbing.processed(outputs, done)
-        self._carry(plumbing.bytes_to_send(done), done, _TO_MOCK)
-        if worked:
-            plumbing.sent(outputs, done, done)
+        data = plumbing.take_bytes()  # written, then logged and handled, as in the daemon
+        self._carry(data, done, _TO_MOCK)
+        plumbing.written(outputs, data, done, done)
         self._busy_until_mono_us = done
         nxt = self.companion.next_deadline_us()
         if nxt <= now and not worked:

@@ -115,3 +115,37 @@ def test_nearest_in_time_picks_by_capture_time() -> None:
     assert t.nearest_in_time(301_000, 200_000, prefer_earlier_us=2_000).t_us == 200_000
     # Never an observation captured after not_after_us.
     assert t.nearest_in_time(600_000, 120_000, not_after_us=599_999).t_us == 500_000
+
+
+def labelled(frame: int, az_deg: float, label: str) -> Observation:
+    o = obs(frame, az_deg)
+    b = o.bearing_ned
+    return Observation(frame, o.t_us, b, b, b, o.angular_radius_rad, (0.0, 0.0), label=label)
+
+
+def test_a_detection_of_another_label_does_not_continue_a_track() -> None:
+    """A yellow object's track is not taken over by a white detection next to where the
+    yellow one was (its own detection missed this frame): the white one starts a track
+    of its own and the yellow track coasts. Empty labels join anything; without
+    keep_labels the white detection continues the yellow track, as before."""
+    for keep in (True, False):
+        tr = Tracker() if keep else Tracker(TrackerConfig(keep_labels=False))  # on by default
+        for f in range(5):
+            tr.update([labelled(f, 10 + 0.2 * f, "yellow")], f * 40_000)
+        yellow = tr.tracks[0].track_id
+        tracks = tr.update([labelled(5, 11.2, "white")], 5 * 40_000)
+        by_id = {t.track_id: t for t in tracks}
+        if keep:
+            assert len(tracks) == 2 and by_id[yellow].coasting
+            assert [t.label for t in tracks if t.track_id != yellow] == ["white"]
+        else:
+            assert list(by_id) == [yellow] and not by_id[yellow].coasting
+        # With its own detection back, the yellow track goes on (it wins the pair).
+        tracks = tr.update([labelled(6, 11.4, "yellow"), labelled(6, 11.5, "white")], 6 * 40_000)
+        assert yellow in {t.track_id for t in tracks if not t.coasting}
+    # A detector without labels, or an unlabelled detection: associated by bearing alone.
+    tr = Tracker()
+    for f in range(3):
+        tr.update([labelled(f, 10 + 0.2 * f, "yellow")], f * 40_000)
+    tracks = tr.update([labelled(3, 10.6, "")], 3 * 40_000)
+    assert len(tracks) == 1 and not tracks[0].coasting

@@ -6,7 +6,8 @@ next bearing from its last angular velocity, and a detection may join it only wi
 angular gate (a fixed angle plus a multiple of the object's angular radius) and with a
 plausible size change. The assignment is optimal over all pairs (Hungarian). Tracks keep
 the observation history the classifier needs, by capture time (``history_s``, at least its
-longest interval), and answer "the observation captured nearest time t".
+longest interval), and answer "the observation captured nearest time t". A detection
+joins only a track of its own label (``keep_labels``), where the detector names them.
 
 A frame without attitude has no local-level bearings (NaN): its observations are
 associated in the camera frame instead (each track's camera bearing, extrapolated the same
@@ -45,6 +46,9 @@ class TrackerConfig:
     # classifier's longest interval and tolerance); at most what this span holds at
     # timebase.MAX_FRAME_RATE_HZ, so memory stays bounded at any rate.
     history_s: float = 2.0
+    # A detection never continues a track of another label (both labels non-empty): a
+    # detector that names its objects does not turn a car into a cloud that drifts past.
+    keep_labels: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.history_s) and self.history_s > 0):
@@ -191,6 +195,17 @@ class Tracker:
     def reset(self) -> None:
         self.tracks.clear()
 
+    def _same_labels(self, observations: Sequence[Observation]) -> np.ndarray | bool:
+        """(tracks, observations) bool: may the pair be associated by its labels (equal,
+        or either one empty)? True for all when the detector names nothing."""
+        obs_labels = [o.label for o in observations]
+        if not any(obs_labels):
+            return True
+        track_labels = [tr.label for tr in self.tracks]
+        if len({label for label in track_labels + obs_labels if label}) < 2:
+            return True  # one label (the usual single-target case), or none
+        return np.array([[not a or not b or a == b for b in obs_labels] for a in track_labels])
+
     def update(self, observations: Sequence[Observation], t_us: int) -> list[Track]:
         """Associate this frame's observations; returns live tracks (detected or coasting)."""
         cfg = self.config
@@ -217,6 +232,8 @@ class Tracker:
             gate = gate * (1.0 + np.array([tr.misses for tr in self.tracks]))[:, None]
             size = np.abs(np.log(alpha_o[None, :] / alpha_t[:, None]))
             ok = (ang <= gate) & (size <= cfg.max_log_size_change)
+            if cfg.keep_labels:
+                ok &= self._same_labels(observations)
             cost = np.where(ok, ang / gate + 0.5 * size, 1e6)
             if n_t == 1 and n_o == 1:
                 # One pair (the common case): the assignment is that pair (the cost is

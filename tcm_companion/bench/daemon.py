@@ -58,7 +58,7 @@ def _proc_sample(pid: int) -> tuple[float, int] | None:
 def _thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
     """Each thread of ``pid``: ``{tid: (name, CPU seconds user+system)}`` (empty if gone).
     The name is the thread's ``comm``, which the daemon's threads set to their
-    ``threading`` name (cut to 15 bytes: :func:`~tcm_companion.threads.name_os_thread`);
+    ``threading`` name (cut to 15 bytes: :func:`~tcm_companion.service.daemon.name_os_threads`);
     the process's first thread is ``main``."""
     out: dict[int, tuple[str, float]] = {}
     try:

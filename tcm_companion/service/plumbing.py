@@ -244,9 +244,8 @@ class Plumbing:
 
     def bytes_to_send(self, now_mono_us: int) -> bytes:
         """What the Companion has for the link, logged as written at ``now_mono_us``."""
-        data = self.companion.data_to_send()
-        if data and self.flight_log is not None:
-            self.flight_log.log_mavlink("out", now_mono_us, data)
+        data = self.take_bytes()
+        self._log_out(data, now_mono_us)
         return data
 
     def take_bytes(self) -> bytes:
@@ -263,8 +262,7 @@ class Plumbing:
         latencies (:meth:`sent`). After the write, not before: each record queued for the
         flight log wakes its writer thread, which takes the GIL, and saving parameters
         touches the disk; neither may delay what the autopilot is waiting for."""
-        if data and self.flight_log is not None:
-            self.flight_log.log_mavlink("out", done_mono_us, data)
+        self._log_out(data, done_mono_us)
         self.processed(outputs, done_mono_us)
         self.sent(outputs, done_mono_us, sent_mono_us)
 
@@ -285,6 +283,10 @@ class Plumbing:
                 self.on_result(out.camera_id, out.result)
 
     # -- details -------------------------------------------------------------------------------
+    def _log_out(self, data: bytes, t_mono_us: int) -> None:
+        if data and self.flight_log is not None:
+            self.flight_log.log_mavlink("out", t_mono_us, data)
+
     def _log_result(self, out: FrameProcessed, done_mono_us: int) -> None:
         from ..flightlog.docs import annotation_circles, result_doc
 

@@ -617,8 +617,10 @@ def test_health_fault_announced_on_change():
 
 def test_gcs_sees_data_flowing_and_the_alarm_as_named_values():
     # statuses at 25 Hz from 10.0 s: no alarm until 11.5 s, then an alarm until 12.5 s,
-    # then the companion goes quiet
-    s = armed_scenario(2).stream(1500, collision_course=0).stream(1000, ttc=2.0).run(4000)
+    # then for a second statuses 2 s older than the autopilot's clock (a companion whose
+    # TIMESYNC is off), then the companion goes quiet
+    s = armed_scenario(2).stream(1500, collision_course=0).stream(1000, ttc=2.0)
+    s = s.stream(1000, collision_course=0, age_ms=2000).run(3000)
     r = s.execute()
     by_t: dict[int, dict[str, float]] = {}
     for line in r.lines:
@@ -626,12 +628,21 @@ def test_gcs_sees_data_flowing_and_the_alarm_as_named_values():
             _, t, name, value = line.split()
             by_t.setdefault(int(t), {})[name] = float(value)
     assert sorted(by_t) == list(range(10050, 17050, 1000))  # once a second, from the first update
-    assert all(set(x) == {"TCM_RX", "TCM_OBJ", "TCM_TTC", "TCM_ALARM"} for x in by_t.values())
+    names = {"TCM_RX", "TCM_OBJ", "TCM_TTC", "TCM_ALARM", "TCM_STALE"}
+    assert all(set(x) == names for x in by_t.values())
     flowing = by_t[11050]
     assert flowing["TCM_RX"] == pytest.approx(25, abs=2) and flowing["TCM_OBJ"] == 1
     assert flowing["TCM_TTC"] == -1 and flowing["TCM_ALARM"] == 0
+    assert flowing["TCM_STALE"] == 0
     alarm = by_t[12050]
     assert alarm["TCM_TTC"] == pytest.approx(2.0) and alarm["TCM_ALARM"] == 1
+    # The stale statuses (12.5 to 13.5 s) count as stale, not as received, in the
+    # second each report covers: 25 a second between them, none once they stop.
+    half, stale = by_t[13050], by_t[14050]
+    assert half["TCM_RX"] + half["TCM_STALE"] == pytest.approx(25, abs=2)
+    assert half["TCM_STALE"] == pytest.approx(14, abs=2)
+    assert stale["TCM_RX"] == 0 and stale["TCM_STALE"] == pytest.approx(11, abs=2)
+    assert by_t[15050]["TCM_STALE"] == 0
     quiet = by_t[16050]
     assert quiet["TCM_RX"] == 0 and quiet["TCM_OBJ"] == 0 and quiet["TCM_ALARM"] == 0
 

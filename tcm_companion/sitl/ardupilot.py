@@ -219,6 +219,9 @@ class FlightReport:
     summary: DaemonSummary | None
     camera_stats: dict[str, Any]
     failures: list[str] = field(default_factory=list)
+    # The applet's TCM_STALE once a second (t, statuses dropped as stale in that second):
+    # time_boot_ms more than TCMA_MAX_AGE off the autopilot's clock, or queued too long
+    stale: list[tuple[float, float]] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -351,6 +354,18 @@ class FlightReport:
                 f" {s.latency_percentile_ms(50):.1f} ms, p99 {s.latency_percentile_ms(99):.1f} ms;"
                 f" faults {s.faults or 'none'}"
             )
+        dropped = sum(v for _, v in self.stale)
+        out.append(
+            f"  applet: {dropped:.0f} statuses dropped as stale"
+            + (
+                " ("
+                + ", ".join(f"{v:.0f} in the second to {at(t)}" for t, v in self.stale if v)
+                + ")"
+                if dropped
+                else ""
+            )
+            + f"; {len(self.stale)} TCM_STALE reports"
+        )
         tcm = [f"{at(t)} {x}" for t, x in self.texts if x.startswith("TCM") or x.startswith("Lua")]
         if tcm:
             out.append("  texts: " + " | ".join(tcm[:12]))
@@ -522,6 +537,11 @@ async def fly_scene(
         summary=summary,
         camera_stats=camera.stats(),
         failures=failures,
+        stale=[
+            (m.t_s, float(m.msg.value))
+            for m in sitl.gcs.messages("NAMED_VALUE_FLOAT", since_s=t0)
+            if m.msg.name == "TCM_STALE"
+        ],
     )
     report.failures += _judge(report)
     return report

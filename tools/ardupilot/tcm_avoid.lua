@@ -506,9 +506,13 @@ MAVLink Inspector; MAVProxy: graph NAMED_VALUE_FLOAT):
   TCM_OBJ   objects currently known
   TCM_TTC   the most urgent collision-course time to contact, s (-1: none)
   TCM_ALARM 1 while a collision alarm holds, else 0
+  TCM_STALE TCM frames dropped as stale in the last second (time_boot_ms more than
+            TCMA_MAX_AGE off this autopilot's clock, or queued longer): a companion
+            whose TIMESYNC is off, or an autopilot too busy to read its link
 --]]
 local last_report_ms = nil
 local ok_at_report = 0
+local stale_at_report = 0
 
 local function report(now)
   if last_report_ms ~= nil and now - last_report_ms < REPORT_MS then return end
@@ -521,6 +525,8 @@ local function report(now)
   gcs:send_named_float("TCM_OBJ", n_objects)
   gcs:send_named_float("TCM_TTC", urgent and urgent.ttc or -1)
   gcs:send_named_float("TCM_ALARM", alarm_active and 1 or 0)
+  gcs:send_named_float("TCM_STALE", stats.stale - stale_at_report)
+  stale_at_report = stats.stale
 end
 
 local function update()

@@ -222,6 +222,10 @@ class FlightReport:
     # The applet's TCM_STALE once a second (t, statuses dropped as stale in that second):
     # time_boot_ms more than TCMA_MAX_AGE off the autopilot's clock, or queued too long
     stale: list[tuple[float, float]] = field(default_factory=list)
+    # The autopilot's clock against ours over the flight, from LOCAL_POSITION_NED's
+    # time_boot_ms: (rate, most it fell behind s); None without two such messages. A
+    # starved SITL's simulated clock falls behind, and TIMESYNC'd stamps drift from it.
+    sitl_clock: tuple[float, float] | None = None
 
     @property
     def ok(self) -> bool:
@@ -365,6 +369,12 @@ class FlightReport:
                 else ""
             )
             + f"; {len(self.stale)} TCM_STALE reports"
+            + (
+                f"; SITL clock {self.sitl_clock[0]:.3f}x ours, at most"
+                f" {1000 * self.sitl_clock[1]:.0f} ms behind"
+                if self.sitl_clock is not None
+                else "; SITL clock not seen"
+            )
         )
         tcm = [f"{at(t)} {x}" for t, x in self.texts if x.startswith("TCM") or x.startswith("Lua")]
         if tcm:
@@ -542,9 +552,24 @@ async def fly_scene(
             for m in sitl.gcs.messages("NAMED_VALUE_FLOAT", since_s=t0)
             if m.msg.name == "TCM_STALE"
         ],
+        sitl_clock=_sitl_clock(
+            [(m.t_s, m.msg.time_boot_ms) for m in sitl.gcs.messages("LOCAL_POSITION_NED", t0)]
+        ),
     )
     report.failures += _judge(report)
     return report
+
+
+def _sitl_clock(samples: list[tuple[float, int]]) -> tuple[float, float] | None:
+    """(rate of the autopilot's ``time_boot_ms`` against our receive times, most it fell
+    behind them, s) over ``samples`` of (receive time s, time_boot_ms); None if fewer
+    than two or no time passed."""
+    if len(samples) < 2 or not samples[-1][0] > samples[0][0]:
+        return None
+    (w0, b0), (w1, b1) = samples[0], samples[-1]
+    rate = (b1 - b0) / 1000.0 / (w1 - w0)
+    behind = max((w - w0) - (b - b0) / 1000.0 for w, b in samples)
+    return rate, behind
 
 
 def _judge(r: FlightReport) -> list[str]:

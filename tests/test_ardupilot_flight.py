@@ -54,17 +54,22 @@ def _fly(sitl: ArduPilotSitl, plan: FlightPlanAP, tmp_path: Path) -> FlightRepor
     return report
 
 
-def _assert_braked_for_the_alarm(r: FlightReport) -> None:
+def _assert_braked_for_the_alarm(r: FlightReport, max_true_ttc_s: float = math.inf) -> None:
+    """``max_true_ttc_s``: the true time to contact when the first alarm was raised is
+    below this (the applet alarms below 3 s estimated)."""
     lines = "\n".join(r.lines())
     assert r.launch is not None, lines
     assert r.alarms, lines
     assert r.brake_s is not None, lines
+    truth = r.first_alarm_truth
+    assert truth is not None and truth.ttc_true_s < max_true_ttc_s, lines
     # within 0.5 s of the daemon's first alarming status (the applet runs every 50 ms)
     assert r.alarm_to_brake_s is not None and 0.0 <= r.alarm_to_brake_s <= 0.5, lines
     assert r.brake_text.startswith(f"TCM: collision course id {r.alarms[0].track_id} "), lines
     assert r.left_brake_while_alarm == [], lines  # braked for as long as the alarm held
     assert not any(t.startswith("Lua") for _, t in r.texts), lines
     assert r.summary is not None and r.summary.frames_balance, lines
+    assert r.sitl_clock is not None and r.stale, lines  # the report saw the clock and TCM_STALE
 
 
 def test_crossing_collision_course_brakes(flying: ArduPilotSitl, tmp_path: Path) -> None:
@@ -88,7 +93,11 @@ def test_crossing_collision_course_brakes(flying: ArduPilotSitl, tmp_path: Path)
 
 def test_headon_brakes_although_the_state_is_unknown(flying: ArduPilotSitl, tmp_path: Path) -> None:
     r = _fly(flying, FlightPlanAP(SceneSettings("headon"), heading_deg=180.0), tmp_path)
-    _assert_braked_for_the_alarm(r)
+    # Head-on the looming is clean: the alarm comes when the ball is truly ~3 s away
+    # (3.1-3.3 s in every flight measured). The crossing ball's alarm can still come early
+    # (docs/ardupilot.md, "Where the method falls short"); the young-track case that read
+    # 2.7 s for a true 6.8 s is tests/test_ttc.py's.
+    _assert_braked_for_the_alarm(r, max_true_ttc_s=4.5)
     first = r.alarms[0]
     assert (first.state, first.reason) == ("unknown", "head-on"), "\n".join(r.lines())
     assert r.min_clearance_m > 0.5

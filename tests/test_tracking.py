@@ -17,10 +17,11 @@ def obs(
     el_deg: float = 0.0,
     alpha_deg: float = 3.0,
     t_us: int | None = None,
+    label: str = "",
 ) -> Observation:
     b = bearing_from_azel(np.radians(az_deg), np.radians(el_deg))
     t = frame * 40_000 if t_us is None else t_us
-    return Observation(frame, t, b, b, b, math.radians(alpha_deg), (0.0, 0.0))
+    return Observation(frame, t, b, b, b, math.radians(alpha_deg), (0.0, 0.0), label=label)
 
 
 def test_two_objects_keep_their_ids() -> None:
@@ -117,12 +118,6 @@ def test_nearest_in_time_picks_by_capture_time() -> None:
     assert t.nearest_in_time(600_000, 120_000, not_after_us=599_999).t_us == 500_000
 
 
-def labelled(frame: int, az_deg: float, label: str) -> Observation:
-    o = obs(frame, az_deg)
-    b = o.bearing_ned
-    return Observation(frame, o.t_us, b, b, b, o.angular_radius_rad, (0.0, 0.0), label=label)
-
-
 def test_a_detection_of_another_label_does_not_continue_a_track() -> None:
     """A yellow object's track is not taken over by a white detection next to where the
     yellow one was (its own detection missed this frame): the white one starts a track
@@ -131,9 +126,9 @@ def test_a_detection_of_another_label_does_not_continue_a_track() -> None:
     for keep in (True, False):
         tr = Tracker() if keep else Tracker(TrackerConfig(keep_labels=False))  # on by default
         for f in range(5):
-            tr.update([labelled(f, 10 + 0.2 * f, "yellow")], f * 40_000)
+            tr.update([obs(f, 10 + 0.2 * f, label="yellow")], f * 40_000)
         yellow = tr.tracks[0].track_id
-        tracks = tr.update([labelled(5, 11.2, "white")], 5 * 40_000)
+        tracks = tr.update([obs(5, 11.2, label="white")], 5 * 40_000)
         by_id = {t.track_id: t for t in tracks}
         if keep:
             assert len(tracks) == 2 and by_id[yellow].coasting
@@ -141,11 +136,11 @@ def test_a_detection_of_another_label_does_not_continue_a_track() -> None:
         else:
             assert list(by_id) == [yellow] and not by_id[yellow].coasting
         # With its own detection back, the yellow track goes on (it wins the pair).
-        tracks = tr.update([labelled(6, 11.4, "yellow"), labelled(6, 11.5, "white")], 6 * 40_000)
+        tracks = tr.update([obs(6, 11.4, label="yellow"), obs(6, 11.5, label="white")], 6 * 40_000)
         assert yellow in {t.track_id for t in tracks if not t.coasting}
     # A detector without labels, or an unlabelled detection: associated by bearing alone.
     tr = Tracker()
     for f in range(3):
-        tr.update([labelled(f, 10 + 0.2 * f, "yellow")], f * 40_000)
-    tracks = tr.update([labelled(3, 10.6, "")], 3 * 40_000)
+        tr.update([obs(f, 10 + 0.2 * f, label="yellow")], f * 40_000)
+    tracks = tr.update([obs(3, 10.6, label="")], 3 * 40_000)
     assert len(tracks) == 1 and not tracks[0].coasting

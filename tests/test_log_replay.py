@@ -18,19 +18,16 @@ from __future__ import annotations
 
 import asyncio
 import csv
-import importlib
 import io
 import json
 import math
 import os
-import platform
 import random
 import signal
 import subprocess
 import sys
 import time
 from dataclasses import replace
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +40,8 @@ from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.results import ResultsWriter
 from tcm_companion.replay.log import ROUNDING_REL_TOL, compare, replay_log
 from tcm_companion.sitl.mock import run_sitl
+
+from .numerics import numeric_environment
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -83,39 +82,6 @@ def test_a_sitl_log_replays_to_exactly_the_logged_results(tmp_path: Path) -> Non
     assert diffs == []
     decided = [o for f in frames for o in f.result.objects if o.state != "unknown"]
     assert decided  # the comparison is about something
-
-
-def numeric_environment() -> dict[str, Any]:
-    """What decides the last bits of the core's floats on this install and machine.
-
-    The numpy, SciPy and OpenCV releases; the OpenBLAS kernel numpy's bundled BLAS runs
-    (matmul, solve: chosen for the CPU when numpy loads, or by OPENBLAS_CORETYPE; the
-    core calls no BLAS through SciPy or OpenCV); the SIMD loops numpy dispatches to on
-    this CPU.
-    """
-    import numpy as np
-    from threadpoolctl import threadpool_info
-
-    try:
-        umath = importlib.import_module("numpy._core._multiarray_umath")
-    except ImportError:  # numpy 1.x
-        umath = importlib.import_module("numpy.core._multiarray_umath")
-    numpy_dir = Path(np.__file__).resolve().parent
-    blas = [
-        f"{i.get('internal_api')} {i.get('architecture')}"
-        for i in threadpool_info()
-        if i.get("user_api") == "blas"
-        and Path(i["filepath"]).resolve().parent.name in ("numpy.libs", numpy_dir.name)
-        and Path(i["filepath"]).resolve().parent.parent == numpy_dir.parent
-    ]
-    return {
-        "machine": platform.machine(),
-        "packages": {
-            name: metadata.version(name) for name in ("numpy", "scipy", "opencv-python-headless")
-        },
-        "numpy_blas": blas[0] if len(blas) == 1 else blas,
-        "numpy_simd": sorted(f for f in umath.__cpu_dispatch__ if umath.__cpu_features__.get(f)),
-    }
 
 
 def _environment_differences(want: dict[str, Any], got: dict[str, Any]) -> list[str]:

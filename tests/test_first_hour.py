@@ -174,6 +174,37 @@ def test_an_out_of_range_number_is_a_usage_error_naming_the_option(
     assert "Traceback" not in err
 
 
+# -- one --duration over flights that end at contact -------------------------------------------
+@pytest.mark.slow
+def test_eval_keeps_a_collision_flight_s_own_length_and_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``eval --sim TS COLLISION --duration 20`` is how the docs run one duration over
+    every flight; a collision course ends before contact (7 s), so it was a traceback."""
+    out = tmp_path / "ev"
+    argv = ["eval", "--sim", "COLLISION", "--duration", "20", "--no-bsm", "-q", "--out", str(out)]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert (
+        "eval: COLLISION lasts 7.00 s, not the --duration 20 asked "
+        "(the flight ends before contact)\n" == captured.err
+    )
+    assert "COLLISION      360x220       175" in captured.out
+
+
+def test_sim_export_of_a_flight_longer_than_its_contact_is_a_usage_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = tmp_path / "hb"
+    assert cli.main(["sim", "export", "HEADON-BOX", str(target), "--duration", "20"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        "tcm-companion sim export: error: argument --duration: HEADON-BOX lasts at most "
+        "7.77 s (box centre reached at 8.57 s)\n"
+    )
+    assert not target.exists()
+
+
 # -- set-up ----------------------------------------------------------------------------------
 def test_pyproject_gives_setuptools_no_deprecation_warning() -> None:
     """The ``license = { text = ... }`` table made every install print setuptools'

@@ -49,7 +49,18 @@ def _scenarios(args: argparse.Namespace, config: AppConfig) -> list[Any]:
                 from ..sim.scene.cameras import preset_camera
 
                 camera = preset_camera(args.camera, None, name)
-            out.append(make_scenario(name, camera=camera, duration_s=args.duration, seed=args.seed))
+            sim = make_scenario(
+                name, camera=camera, duration_s=args.duration, seed=args.seed, shorter_ok=True
+            )
+            if args.duration is not None and sim.plan.duration_s < args.duration:
+                # one --duration over several flights: a collision or head-on course
+                # ends before contact, so it keeps its own length and says so
+                print(
+                    f"eval: {sim.name} lasts {sim.plan.duration_s:.2f} s, not the "
+                    f"--duration {args.duration:g} asked (the flight ends before contact)",
+                    file=sys.stderr,
+                )
+            out.append(sim)
     if not out:
         raise SystemExit("eval: give scenario directories and/or --sim NAME ...")
     return out

@@ -8,6 +8,7 @@ mock; :func:`~tcm_companion.sim.vehicle.mock_autopilot_run.run_from_args` runs i
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from ..sim.scene.names import SCENARIO_NAMES
@@ -35,9 +36,14 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
     from ..io.outputs import atomic_path
     from ..sim import make_scenario
     from ..sim.scene.export import export_scenario
+    from ..sim.scene.scenarios import FlightTooLong
 
     camera = _camera_arg(args)
-    sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)
+    try:
+        sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)
+    except FlightTooLong as exc:  # a collision or head-on course ends before contact
+        print(f"tcm-companion sim export: error: argument --duration: {exc}", file=sys.stderr)
+        return 2
     if camera is None and args.resolution is not None:
         sim = make_scenario(
             args.name,

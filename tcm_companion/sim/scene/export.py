@@ -43,7 +43,14 @@ from ..vehicle.telemetry import (
 )
 from .render import Renderer
 from .scenario_io import targets_toml
-from .scenarios import SCENARIO_NAMES, FlightPlan, default_camera, flight_plan, plan_world
+from .scenarios import (
+    SCENARIO_NAMES,
+    FlightPlan,
+    FlightTooLong,
+    default_camera,
+    flight_plan,
+    plan_world,
+)
 from .world import World
 
 if TYPE_CHECKING:
@@ -221,12 +228,12 @@ def make_scenario(
     """Scenario ``name`` (one of ``SCENARIO_NAMES``) through ``camera`` (default: the
     paper's 360×220 panorama). ``noise`` scales sensor and telemetry noise (0: none).
     A flight that cannot last ``duration_s`` (a collision or head-on course ends at
-    contact) raises ValueError, or with ``shorter_ok`` keeps its own, shorter duration
-    (the studies that run one duration over every flight)."""
+    contact) raises :class:`FlightTooLong`, or with ``shorter_ok`` keeps its own, shorter
+    duration (``eval`` and the studies that run one duration over every flight)."""
     try:
         plan = flight_plan(name, duration_s=duration_s, seed=seed)
-    except ValueError as exc:
-        if not (shorter_ok and "lasts at most" in str(exc)):
+    except FlightTooLong:
+        if not shorter_ok:
             raise
         plan = flight_plan(name, seed=seed)
     return SimulatedScenario(

@@ -270,6 +270,16 @@ class SceneExtras:
     sun: Sun | None = None
 
 
+class FlightTooLong(ValueError):
+    """A flight asked to last longer than it can: a collision or head-on course ends
+    shortly before contact. ``max_duration_s`` is the longest it can last."""
+
+    def __init__(self, name: str, max_duration_s: float, why: str) -> None:
+        super().__init__(f"{name} lasts at most {max_duration_s:.2f} s ({why})")
+        self.name = name
+        self.max_duration_s = max_duration_s
+
+
 @dataclass(frozen=True)
 class FlightPlan:
     """One scenario's design: vehicle motion, objects, duration and frame rate.
@@ -421,9 +431,7 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
         closing = float(np.linalg.norm(v_veh - v_ball))
         t_contact = _COLLISION_START_RANGE_M / closing
         if duration > t_contact - 0.5:
-            raise ValueError(
-                f"COLLISION lasts at most {t_contact - 0.5:.2f} s (contact at {t_contact:.2f} s)"
-            )
+            raise FlightTooLong(key, t_contact - 0.5, f"contact at {t_contact:.2f} s")
         meet = np.asarray(path.origin_ned_m) + v_veh * t_contact  # the vehicle's commanded point
         start = meet - v_ball * t_contact
         balls = (Ball(Trajectory.linear(vec3(start), vec3(v_ball))),)
@@ -431,9 +439,7 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
     else:  # HEADON
         t_contact = (_HEADON_BALL_ALONG_M - _HEADON_START_ALONG_M) / _HEADON_SPEED_MPS
         if duration > t_contact - 0.8:
-            raise ValueError(
-                f"HEADON lasts at most {t_contact - 0.8:.2f} s (ball reached at {t_contact:.2f} s)"
-            )
+            raise FlightTooLong(key, t_contact - 0.8, f"ball reached at {t_contact:.2f} s")
         balls = (Ball(Trajectory.static(_track_point(_HEADON_BALL_ALONG_M, 0.25, -1.75))),)
         desc = "vehicle flying straight at a static ball at 1.75 m/s, range 15 m to 2 m (time to contact)"
     return FlightPlan(key, desc, duration, vehicle, balls)
@@ -588,9 +594,7 @@ def _object_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
         v_obj = _COLLISION_BALL_RIGHT_MPS * rt
         t_contact = _COLLISION_START_RANGE_M / float(np.linalg.norm(v_veh - v_obj))
         if duration > t_contact - 0.5:
-            raise ValueError(
-                f"{key} lasts at most {t_contact - 0.5:.2f} s (contact at {t_contact:.2f} s)"
-            )
+            raise FlightTooLong(key, t_contact - 0.5, f"contact at {t_contact:.2f} s")
         meet = np.asarray(path.origin_ned_m) + v_veh * t_contact
         traj = Trajectory.linear(vec3(meet - v_obj * t_contact), vec3(v_obj))
         if key == "COLLISION-CYL":
@@ -604,10 +608,7 @@ def _object_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
     elif key == "HEADON-BOX":
         t_contact = (_HEADON_BALL_ALONG_M - _HEADON_START_ALONG_M) / _HEADON_SPEED_MPS
         if duration > t_contact - 0.8:
-            raise ValueError(
-                f"HEADON-BOX lasts at most {t_contact - 0.8:.2f} s "
-                f"(box centre reached at {t_contact:.2f} s)"
-            )
+            raise FlightTooLong(key, t_contact - 0.8, f"box centre reached at {t_contact:.2f} s")
         centre = _standing(_HEADON_BALL_ALONG_M, 0.25, CONTAINER_SIZE_M[2])
         targets = (
             BoxTarget(

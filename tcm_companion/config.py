@@ -447,6 +447,7 @@ RANGES: dict[str, RangeSpec] = {
             # θ from the translation axis; head-on is θ < min_theta or > π - min_theta,
             # so at 90° everything would be head-on.
             "min_theta_rad": "[0, pi/2) rad",
+            "head_on_extent_fraction": "[0, 1]",  # of the angular radius; 0: off
             "min_baseline_m": "[0, inf) m",  # 0: off
             "min_flow_parallax_rad": "[0, pi] rad",  # 0: off
             "hover_max_baseline_m": "[0, inf) m",

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from tcm_companion.core.classify import ClassifierConfig, classify_pair
+from tcm_companion.core.classify import ClassifierConfig, classify_pair, extent_disparity_sigma
 from tcm_companion.core.frames import normalize
 from tcm_companion.core.tcm import (
     ecm_omega_rad,
@@ -128,3 +129,49 @@ def test_head_on_is_unknown_and_threshold_decides() -> None:
     assert classify_pair(t_hat, side0, side1, 0.05, a1_still, cfg, 25).state == "stationary"
     moving = classify_pair(t_hat, side0, side1, 0.05, a1_still * 1.2, cfg, 25)
     assert moving.state == "moving" and moving.disparity > cfg.tcm_threshold
+
+
+def _at_theta(theta_rad: float) -> np.ndarray:
+    """A bearing ``theta_rad`` off the translation axis x, in the x–y plane."""
+    return np.array([math.cos(theta_rad), math.sin(theta_rad), 0.0])
+
+
+def test_a_big_object_just_off_the_axis_is_head_on_for_its_size() -> None:
+    """HEADON-BOX's last pairs (a 2.4-m container 2.2–2.9 m away, 11–13° off the axis,
+    angular radius 0.35 → 0.5 rad) were decided moving: the detection's centre follows
+    the box's near face, and there TCM amplifies a bearing error by cot θ. The same
+    bearings with a small object's size, or the same size across the track, decide."""
+    cfg = ClassifierConfig()
+    t_hat = np.array([1.0, 0.0, 0.0])
+    b0, b1 = _at_theta(math.radians(11.0)), _at_theta(math.radians(13.0))
+    big = classify_pair(t_hat, b0, b1, 0.35, 0.5, cfg, 25)
+    assert (big.state, big.reason) == ("unknown", "head-on")
+    assert math.isfinite(big.disparity)  # measured, only not decided
+    small = classify_pair(t_hat, b0, b1, 0.035, 0.05, cfg, 25)
+    assert small.state in ("moving", "stationary")
+    side0, side1 = _at_theta(math.radians(80.0)), _at_theta(math.radians(95.0))
+    across = classify_pair(t_hat, side0, side1, 0.35, 0.5, cfg, 25)
+    assert across.state in ("moving", "stationary")
+    off = replace(cfg, head_on_extent_fraction=0.0)
+    assert classify_pair(t_hat, b0, b1, 0.35, 0.5, off, 25).state == "moving"
+
+
+@settings(max_examples=200)
+@given(
+    th0=st.floats(0.2, 2.9),
+    th1=st.floats(0.2, 2.9),
+    a0=st.floats(0.001, 0.6),
+    a1=st.floats(0.001, 0.6),
+)
+def test_the_extent_sigma_is_how_far_r_geo_moves_when_the_centres_wander(
+    th0: float, th1: float, a0: float, a1: float
+) -> None:
+    """``extent_disparity_sigma`` against R_geo = sin θ1 / sin θ0 moved numerically by
+    each end's wander (k α), the two added in quadrature."""
+    k = 1e-4  # small enough for the linearisation
+    r_geo = math.sin(th1) / math.sin(th0)
+    d0 = math.sin(th1) / math.sin(th0 + k * a0) - r_geo
+    d1 = math.sin(th1 + k * a1) / math.sin(th0) - r_geo
+    want = math.hypot(d0, d1)
+    got = extent_disparity_sigma(r_geo, th0, th1, a0, a1, k)
+    assert got == pytest.approx(want, rel=1e-3, abs=1e-12)

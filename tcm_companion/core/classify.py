@@ -13,7 +13,9 @@ with the reason:
 - ``lost track``: no detection this frame (the track is coasting);
 - ``no attitude``/``no translation``: egomotion unavailable for the pair;
 - ``small baseline``: the vehicle moved too little between the frames (hover, turnaround);
-- ``head-on``: the object lies within ``min_theta`` of the translation axis (0/0);
+- ``head-on``: the object lies within ``min_theta`` of the translation axis (0/0), or so
+  near it for its angular size that the wander of its centre on a solid object makes δ
+  too uncertain (``head_on_extent_fraction``);
 - ``at image border``: the object is cut by the image edge, so its size is not its size.
 """
 
@@ -61,6 +63,13 @@ class ClassifierConfig:
     ecm_threshold_rad: float = 0.05  # Ω above this: moving
     bsm_threshold: float = 100.0  # supra-threshold pixels around the object: moving
     min_theta_rad: float = math.radians(10.0)  # closer to the translation axis: head-on
+    # A detection's centre (a blob's, a box's) is no fixed point of a solid object: it may
+    # wander by this fraction of the object's angular radius as the view changes (a deep
+    # box seen from 2 m follows its near face). Near the translation axis TCM's range
+    # ratio amplifies a bearing error by cot θ, so a pair whose δ that wander makes more
+    # uncertain than ``max_disparity_sigma`` is "head-on" for its size (0: off;
+    # tools/extent_guard_study.py).
+    head_on_extent_fraction: float = 0.05
     min_baseline_m: float = 0.0  # autopilot |T| below this: small baseline (0: off)
     min_flow_parallax_rad: float = 0.0  # vision ground parallax below this: small baseline
     # When the vehicle barely moved between the frames (vision parallax below egomotion's
@@ -237,6 +246,12 @@ def classify_pair(
     lo, hi = config.min_theta_rad, math.pi - config.min_theta_rad
     if config.method != "bsm" and not (lo <= th0 <= hi and lo <= th1 <= hi):
         return _replaced(measured, reason="head-on")
+    if config.method != "bsm" and config.head_on_extent_fraction > 0:
+        sigma_extent = extent_disparity_sigma(
+            float(geo.r_geo), th0, th1, alpha0_rad, alpha1_rad, config.head_on_extent_fraction
+        )
+        if sigma_extent > config.max_disparity_sigma:  # NaN: decided below
+            return _replaced(measured, reason="head-on")
     if config.method in ("tcm", "fused") and t_sigma_rad > 0:
         sigma_delta = abs(float(geo.r_geo)) * t_sigma_rad * abs(math.sin(th1 - th0))
         sigma_delta /= math.sin(th0) * math.sin(th1)
@@ -246,6 +261,25 @@ def classify_pair(
     if not math.isfinite(score):
         return _replaced(measured, reason="degenerate geometry")
     return _replaced(measured, state="moving" if score > 1.0 else "stationary")
+
+
+def extent_disparity_sigma(
+    r_geo: float,
+    theta0_rad: float,
+    theta1_rad: float,
+    alpha0_rad: float,
+    alpha1_rad: float,
+    fraction: float,
+) -> float:
+    """1-σ uncertainty of δ when each end's bearing may be ``fraction`` of the object's
+    angular radius ``alpha_rad`` off the point it should track: ``R_geo = sin θ1 / sin θ0``
+    moves by ``R_geo cot θ`` per radian of either θ, so ``|R_geo| · fraction ·
+    √((α0 cot θ0)² + (α1 cot θ1)²)``. Small across the track, large near its axis for an
+    object that looks big (NaN for θ at 0 or π)."""
+    t0, t1 = math.tan(theta0_rad), math.tan(theta1_rad)
+    if t0 == 0 or t1 == 0:
+        return math.nan
+    return abs(r_geo) * fraction * math.hypot(alpha0_rad / t0, alpha1_rad / t1)
 
 
 def combine_pairs(pairs: list[Classification]) -> Classification:

@@ -132,3 +132,26 @@ def test_ground_station_sees_companion_data_flowing(
     assert 1.0 <= rx.msg.value <= 6.0  # health at 4 Hz
     names = {m.msg.name for m in sitl.gcs.messages("NAMED_VALUE_FLOAT", since_s=t0)}
     assert {"TCM_RX", "TCM_OBJ", "TCM_TTC", "TCM_ALARM"} <= names
+
+
+def test_a_burst_of_statuses_does_not_exceed_the_vm_budget(
+    sitl: ArduPilotSitl, companion: MavlinkTcpClient
+) -> None:
+    """Seen in the flights on a loaded machine: "Lua: ./scripts/tcm_avoid.lua exceeded
+    time limit", the applet removed, no BRAKE. ArduPilot stops a script whose call runs
+    more than SCR_VM_I_COUNT (10000) VM instructions, and the applet read up to 20 queued
+    messages a call at ~1,500 each. A burst of 20 statuses (eight tracked objects and a
+    late scheduling slot make one) reached it at once here; it must read them over
+    several calls and still warn of the alarm that follows."""
+    codec = MavlinkCodec(1, 191)
+    t0 = time.monotonic()
+    burst = b"".join(
+        codec.encode(_alarm(_boot_ms(sitl), track_id=20 + i, collision_course=0, ttc=math.nan))
+        for i in range(20)
+    )
+    companion.send_bytes(burst)
+    time.sleep(1.0)
+    assert [t.text for t in sitl.statustexts(t0) if t.text.startswith("Lua")] == []
+    companion.send_bytes(codec.encode(_alarm(_boot_ms(sitl), track_id=9)))
+    warn = sitl.wait_statustext(r"^TCM: collision course id 9 ttc 1\.5s$", 3.0, since_s=t0)
+    assert warn.t_s > t0

@@ -63,7 +63,7 @@ def _assert_braked_for_the_alarm(r: FlightReport, max_true_ttc_s: float = math.i
     assert r.brake_s is not None, lines
     truth = r.first_alarm_truth
     assert truth is not None and truth.ttc_true_s < max_true_ttc_s, lines
-    # within 0.5 s of the daemon's first alarming status (the applet runs every 50 ms)
+    # within 0.5 s of the daemon's first alarming status (the applet runs every 20 ms)
     assert r.alarm_to_brake_s is not None and 0.0 <= r.alarm_to_brake_s <= 0.5, lines
     assert r.brake_text.startswith(f"TCM: collision course id {r.alarms[0].track_id} "), lines
     assert r.left_brake_while_alarm == [], lines  # braked for as long as the alarm held

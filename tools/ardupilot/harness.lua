@@ -24,9 +24,13 @@ Commands (one per line, '#' comments):
   trace 0|1              print every accepted decoded message as FIELDS {json}
   run MS                 run the scheduler for MS of simulated time
   stats                  print the applet's receive counters
+  vm_steps N             VM instructions a call may take (ArduPilot's SCR_VM_I_COUNT,
+                         default 10000); past it the applet is stopped, as there
+  vm                     print the most VM instructions one call took so far, and
+                         the last call's
 Output lines:
   LOADED / TEXT t sev "text" / NAMED t name value / SET_MODE t mode ok / PRX t dist yaw pitch /
-  FIELDS {json} / STATS {json} / ERROR msg
+  FIELDS {json} / STATS {json} / VM peak N last L steps M / ERROR msg
 --]]
 
 local applet_path = arg[1] or "tools/ardupilot/tcm_avoid.lua"
@@ -152,22 +156,73 @@ end
 -- ---------------------------------------------------------------- run
 local update_fn, next_run = nil, nil
 
+local call_limited  -- below
+
+local stopped = false  -- removed, as ArduPilot removes a script that failed
+
 local function load_applet()
   local chunk, err = loadfile(applet_path)
   if not chunk then error(err) end
-  local fn, delay = chunk()
+  local fn, delay = call_limited(chunk)  -- the script's body runs under the hook too
+  if fn == nil then
+    stopped = true
+    emit("STOPPED")
+    return
+  end
   update_fn, next_run = fn, now + (delay or 0)
   emit("LOADED")
 end
 
+-- ArduPilot runs each call of a script under a Lua count hook of SCR_VM_I_COUNT
+-- VM instructions (default 10000; lua_scripts.cpp): past it the hook raises
+-- "Exceeded CPU time", the firmware prints "Lua: <script> exceeded time limit" and
+-- removes the script for good. The same here, counted exactly, with the most any
+-- call took (the "vm" command prints it). Only the applet's own instructions
+-- count: the bindings faked above in Lua are C functions in the firmware.
+local vm_steps = 10000
+local vm_used, vm_peak, vm_last = 0, 0, 0
+local applet_source = "@" .. applet_path
+local getinfo = debug.getinfo
+local function count_step()
+  if getinfo(2, "S").source ~= applet_source then return end
+  vm_used = vm_used + 1
+  if vm_used > vm_steps then
+    debug.sethook()
+    error("Exceeded CPU time")
+  end
+end
+
+function call_limited(fn)
+  vm_used = 0
+  debug.sethook(count_step, "", 1)
+  local ok, a, b = pcall(fn)
+  debug.sethook()
+  vm_last = vm_used
+  if vm_used > vm_peak then vm_peak = vm_used end
+  if not ok then
+    if tostring(a):find("Exceeded CPU time", 1, true) then
+      emit("ERROR " .. applet_path .. " exceeded time limit")
+    else
+      emit("ERROR " .. tostring(a))
+    end
+    return nil
+  end
+  return a, b
+end
+
 local function run(ms)
-  if update_fn == nil then load_applet() end
+  if not stopped and update_fn == nil then load_applet() end
+  if stopped then
+    now = now + ms
+    return
+  end
   local stop = now + ms
   while next_run <= stop do
     now = next_run
-    local fn, delay = update_fn()
+    local fn, delay = call_limited(update_fn)
     if fn == nil then
       emit("STOPPED")
+      stopped = true
       update_fn = nil
       now = stop
       return
@@ -217,6 +272,10 @@ for line in io.lines() do
     TCM_TEST_HOOK = (words[2] == "1") and trace_hook or nil
   elseif cmd == "run" then
     run(tonumber(words[2]))
+  elseif cmd == "vm_steps" then
+    vm_steps = tonumber(words[2])
+  elseif cmd == "vm" then
+    emit(string.format("VM peak %d last %d steps %d", vm_peak, vm_last, vm_steps))
   elseif cmd == "stats" then
     if TCM_APPLET then emit("STATS " .. json_object(TCM_APPLET.stats)) end
   else

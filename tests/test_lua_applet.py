@@ -20,6 +20,7 @@ import shutil
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -787,6 +788,44 @@ def test_mock_autopilot_does_not_brake_without_applet_action(action, kw):
     ap, _, speed = _mock_run(action, **kw)
     assert ap.braking is None and ap.mode_requests == []
     assert speed == pytest.approx(1.5, abs=0.1)
+
+
+def _mock_with_burst(vm_steps: int = 10000) -> tuple[Any, list[str]]:
+    """The applet in the mock autopilot, given 20 statuses at once and then an alarm;
+    the texts it sent."""
+    pytest.importorskip("lupa", reason="lupa not installed (pip install lupa)")
+    from tcm_companion.sim.vehicle.lua_applet import LuaAppletAutopilot
+    from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
+
+    t0 = 5_000_000_000
+    cfg = MockAutopilotConfig(scenario="COLLISION", ekf_origin_delay_us=0, brake_on_collision=False)
+    ap = LuaAppletAutopilot(MockAutopilot(cfg, t0), params={"TCMA_ACTION": 1}, vm_steps=vm_steps)
+    s = Scenario()
+    now = t0 + 100_000
+    s.now = ap.mock.boot_us(now) // 1000
+    burst = b"".join(
+        s.codec.encode(s.status_msg(track_id=20 + i, collision_course=0)) for i in range(20)
+    )
+    ap.receive_data(burst, now)
+    ap.poll(now + 500_000)
+    s.now = ap.mock.boot_us(now + 500_000) // 1000
+    ap.receive_data(s.codec.encode(s.status_msg(track_id=9)), now + 500_000)
+    ap.poll(now + 600_000)
+    return ap, [t for _, _, t in ap.texts]
+
+
+def test_the_mock_autopilot_holds_the_applet_to_ardupilots_vm_budget() -> None:
+    """As the firmware does (tests/test_ardupilot_applet.py has the same burst on real
+    ArduPilot): a burst of 20 statuses is read over several calls within the budget, and
+    a budget too small for a call (here the applet's load, ~3,500 instructions with the
+    fake parameter bindings in Lua) removes the applet with the firmware's text."""
+    ap, texts = _mock_with_burst()
+    assert not [t for t in texts if t.startswith("Lua")], texts
+    assert "TCM: collision course id 9 ttc 1.5s" in texts
+    ap, texts = _mock_with_burst(vm_steps=1500)
+    assert texts.count("Lua: ./scripts/tcm_avoid.lua exceeded time limit") == 1, texts
+    assert not [t for t in texts if "collision course" in t]
+    assert ap.mock.stats["lua script removed"] == 1
 
 
 def test_closed_loop_sitl_the_daemon_drives_the_applet_to_brake(tmp_path: Path) -> None:

@@ -18,9 +18,13 @@ runs the applet in an embedded Lua 5.4 (``lupa``) with the bindings it uses, as
   :attr:`flying` (the mock is always airborne: True by default);
 - ``millis()`` is the mock's boot clock; parameters live in :attr:`params`
   (``param`` and ``Parameter`` are ``tools/ardupilot/fake_params.lua``, shared with the
-  harness).
+  harness);
+- each call of the applet runs within ``vm_steps`` Lua VM instructions (ArduPilot's
+  ``SCR_VM_I_COUNT``, 10000): past it the firmware's ``Lua: ./scripts/tcm_avoid.lua
+  exceeded time limit`` and the applet is gone, as on ArduPilot. (The fake parameter
+  bindings are Lua here and count; the firmware's are C: a little stricter.)
 
-The applet runs every time it asks to (``return update, 50``) as the caller's time
+The applet runs every time it asks to (``return update, 20``) as the caller's time
 passes through :meth:`receive_data` and :meth:`poll`.
 """
 
@@ -68,6 +72,19 @@ function arming:is_armed() return HOST.armed end
 
 FWVersion = {}
 function FWVersion:type() return 2 end
+
+-- ArduPilot runs each call of a script under a count hook of SCR_VM_I_COUNT VM
+-- instructions and removes the script past it (lua_scripts.cpp).
+local function overtime()
+  debug.sethook()
+  error("Exceeded CPU time")
+end
+function TCM_CALL_LIMITED(fn, steps)
+  debug.sethook(overtime, "", steps)
+  local ok, a, b = pcall(fn)
+  debug.sethook()
+  return ok, a, b
+end
 
 """
 
@@ -148,6 +165,7 @@ class LuaAppletAutopilot:
         mock: MockAutopilot,
         applet: Path = APPLET_PATH,
         params: dict[str, float] | None = None,
+        vm_steps: int = 10000,
     ) -> None:
         from lupa import lua54  # optional dependency: only this module needs it
 
@@ -174,8 +192,31 @@ class LuaAppletAutopilot:
         chunk = self.lua.globals().loadfile(str(applet).encode())
         if chunk is None:
             raise RuntimeError(f"cannot load {applet}")
-        fn, delay = chunk()
-        self._update, self._next_ms = fn, self._boot_ms() + int(delay)
+        self.vm_steps = vm_steps
+        self._script = f"./scripts/{applet.name}"
+        self._call_limited = self.lua.globals().TCM_CALL_LIMITED
+        self._update: Any = None
+        self._next_ms = self._boot_ms()
+        loaded = self._call(chunk)  # the body runs under the budget too
+        if loaded is not None:
+            fn, delay = loaded
+            self._update, self._next_ms = fn, self._boot_ms() + int(delay)
+
+    def _call(self, fn: Any) -> tuple[Any, Any] | None:
+        """``fn()`` within ``vm_steps`` VM instructions, its two results; None when it
+        failed, after the firmware's text (and the script is then removed, as
+        ArduPilot removes it: no further updates)."""
+        ok, a, b = self._call_limited(fn, self.vm_steps)
+        if ok:
+            return a, b
+        why = a.decode(errors="replace") if isinstance(a, bytes) else str(a)
+        if "Exceeded CPU time" in why:
+            self.host.send_text(2, f"Lua: {self._script} exceeded time limit")
+        else:
+            self.host.send_text(2, f"Lua: {why}")
+        self.mock.stats["lua script removed"] += 1
+        self._update = None
+        return None
 
     def param(self, name: str) -> float | None:
         return self.host.params[name.encode()]
@@ -233,10 +274,11 @@ class LuaAppletAutopilot:
         stop_ms = (now_us + boot_zero) // 1000
         while self._update is not None and self._next_ms <= stop_ms:
             self.clock_ms = self._next_ms
-            fn, delay = self._update()
-            if fn is None:
+            called = self._call(self._update)
+            if called is None or called[0] is None:
                 self._update = None
                 break
+            fn, delay = called
             self._update, self._next_ms = fn, self._next_ms + int(delay)
         self.clock_ms = max(self.clock_ms, stop_ms)
         return self.events

@@ -413,7 +413,11 @@ class FlightLogWriter:
         self._rotate_bytes = int(config.rotate_size_mb * _MB)
         self._min_free_bytes = config.min_free_mb * _MB
 
-        self._q: queue.Queue[Any] = queue.Queue(maxsize=config.queue_items)
+        # A SimpleQueue (put and get in C, no Python-level Condition), bounded by the
+        # producers themselves: they check the depth and put under ``_lock``, which they
+        # take for the counts anyway, so it never holds more than ``queue_items`` items.
+        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._maxsize = int(config.queue_items)
         self._lock = threading.Lock()
         self._accepting = False
         self._started = False
@@ -490,8 +494,7 @@ class FlightLogWriter:
         t0 = time.monotonic()
         self._drain_deadline = t0 + 0.8 * max(timeout_s, 0.0)
         self._stop_evt.set()
-        with contextlib.suppress(queue.Full):
-            self._q.put_nowait(_STOP)
+        self._q.put(_STOP)  # wakes the writer (beyond the bound: it carries no data)
         if self._thread is not None:
             self._thread.join(max(0.0, t0 + timeout_s - time.monotonic()))
             if self._thread.is_alive():
@@ -534,34 +537,33 @@ class FlightLogWriter:
         return self._put((_JSON, topic, t_us, doc))
 
     def _put(self, item: _Item) -> bool:
-        ok = False
-        if self._accepting:
-            try:
-                if self.deterministic:  # wait for room (a simulation's time does not pass)
-                    while self._accepting and self.alive:
-                        try:
-                            self._q.put(item, timeout=0.05)
-                            ok = True
-                            break
-                        except queue.Full:
-                            continue
-                else:
-                    self._q.put_nowait(item)
-                    ok = True
-            except Exception:  # queue.Full, or anything: never raise into the daemon
-                pass
         c = self._counts
-        with self._lock:  # spelt out: this is the daemon's path (FlightLogStats.count is not)
-            if item[0] == _FRAME:
-                if ok:
-                    c.frames_queued += 1
-                else:
-                    c.frames_dropped_queue += 1
-            elif ok:
-                c.messages_queued += 1
-            else:
-                c.messages_dropped_queue += 1
-        return ok
+        q = self._q
+        while True:
+            with self._lock:  # spelt out: this is the daemon's path (FlightLogStats.count is not)
+                ok = wait = False
+                try:
+                    if self._accepting and q.qsize() < self._maxsize:
+                        q.put(item)
+                        ok = True
+                    else:
+                        # Deterministic: wait for room (a simulation's time does not pass
+                        # meanwhile). Live, a full queue costs the item.
+                        wait = self.deterministic and self._accepting and self.alive
+                except Exception:  # anything: never raise into the daemon
+                    ok = wait = False
+                if not wait:
+                    if item[0] == _FRAME:
+                        if ok:
+                            c.frames_queued += 1
+                        else:
+                            c.frames_dropped_queue += 1
+                    elif ok:
+                        c.messages_queued += 1
+                    else:
+                        c.messages_dropped_queue += 1
+                    return ok
+            time.sleep(0.0005)
 
     # -- state -------------------------------------------------------------------------
 

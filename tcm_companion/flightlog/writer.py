@@ -6,7 +6,11 @@ Writing
 documents from the daemon's asyncio thread through non-blocking ``log_*`` calls into one
 bounded queue (``[logging] queue_items``). A full queue costs the item (counted), never a
 wait. ONE writer thread does everything else: JPEG/PNG encoding, JSON and protobuf
-serialisation, MCAP framing, compression and file IO.
+serialisation, MCAP framing, compression and file IO. It is woken by each frame, by a
+half-full queue and by its own timers, not by every item: the MAVLink bytes and results
+between two frames are written together (a wake-up per item cost the daemon's loop a
+futex call and a GIL hand-over each; docs/decisions.md §8). Its flush timer still runs,
+so the crash-safety bound below holds without frames too.
 
 *Ownership.* ``log_frame`` keeps a reference to the image array, it does not copy it: the
 caller must not modify a frame after handing it over (the daemon never does: a captured
@@ -418,6 +422,13 @@ class FlightLogWriter:
         # take for the counts anyway, so it never holds more than ``queue_items`` items.
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._maxsize = int(config.queue_items)
+        # Live, the writer thread sleeps until a frame is queued (25 Hz), the queue is
+        # half full, its own timers are due or it is stopped: each wake-up is a futex
+        # call in the producer and a GIL hand-over, and the link's bytes and the results
+        # (~6 items a frame) ride along with the frames. Deterministic: woken per item
+        # (a producer waiting for the counts, wait_drained, must not wait for a frame).
+        self._wake = threading.Event()
+        self._wake_depth = max(1, self._maxsize // 2)
         self._lock = threading.Lock()
         self._accepting = False
         self._started = False
@@ -494,7 +505,8 @@ class FlightLogWriter:
         t0 = time.monotonic()
         self._drain_deadline = t0 + 0.8 * max(timeout_s, 0.0)
         self._stop_evt.set()
-        self._q.put(_STOP)  # wakes the writer (beyond the bound: it carries no data)
+        self._q.put(_STOP)  # (beyond the bound: it carries no data)
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(max(0.0, t0 + timeout_s - time.monotonic()))
             if self._thread.is_alive():
@@ -543,9 +555,12 @@ class FlightLogWriter:
             with self._lock:  # spelt out: this is the daemon's path (FlightLogStats.count is not)
                 ok = wait = False
                 try:
-                    if self._accepting and q.qsize() < self._maxsize:
+                    depth = q.qsize()
+                    if self._accepting and depth < self._maxsize:
                         q.put(item)
                         ok = True
+                        if item[0] == _FRAME or depth + 1 >= self._wake_depth:
+                            self._wake.set()
                     else:
                         # Deterministic: wait for room (a simulation's time does not pass
                         # meanwhile). Live, a full queue costs the item.
@@ -631,12 +646,26 @@ class FlightLogWriter:
             wake = min(next_flush, self._next_free_check)
             if self._fault:
                 wake = min(wake, self._next_retry)
-            try:
-                item = self._q.get(timeout=max(0.0, wake - time.monotonic()))
-            except queue.Empty:
-                item = None
-            if item is not None and item is not _STOP:
-                self._process(item)
+            timeout = max(0.0, wake - time.monotonic())
+            if self.deterministic:
+                try:
+                    item = self._q.get(timeout=timeout)
+                except queue.Empty:
+                    item = None
+                if item is not None and item is not _STOP:
+                    self._process(item)
+            else:
+                # Woken by a frame (or a half-full queue, or stop), not by every item:
+                # what came in meanwhile (the link's bytes, results) is written with it.
+                self._wake.wait(timeout)
+                self._wake.clear()
+                while True:
+                    try:
+                        item = self._q.get_nowait()
+                    except queue.Empty:
+                        break
+                    if item is not _STOP:
+                        self._process(item)
             now = time.monotonic()
             self._housekeeping(now)
             if now >= next_flush:

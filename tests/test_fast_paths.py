@@ -219,3 +219,21 @@ def test_input_rate_count_by_bisection_equals_the_count_of_newer_arrivals() -> N
             since = min(mon._since_us, now)
             span_us = min(spec.window_us, max(now - since, 1))
             assert st.rate_hz == n / (span_us / 1e6)
+
+
+def test_any_nonzero_of_a_frame_equals_numpys_any() -> None:
+    from tcm_companion.io.cameras.reader import _any_nonzero
+
+    rng = np.random.default_rng(5)
+    h, w = 22, 36
+    frames = [np.zeros((h, w, 3), np.uint8), rng.integers(0, 256, (h, w, 3), dtype=np.uint8)]
+    for idx in [(0, 0, 0), (h - 1, w - 1, 2), (h // 2, 0, 1), (0, w - 1, 2), (h - 1, 0, 0)]:
+        z = np.zeros((h, w, 3), np.uint8)
+        z[idx] = int(rng.integers(1, 256))
+        frames.append(z)
+    big = np.zeros((2 * h, 2 * w, 3), np.uint8)
+    big[1, 1, 1] = 7  # only in the rows/columns a strided view skips
+    frames += [big[::2, ::2], big[1::2, 1::2], np.asfortranarray(frames[3]), frames[1][:, ::-1]]
+    for f in frames:
+        assert f.shape[2] == 3 and f.dtype == np.uint8
+        assert _any_nonzero(f) is bool(f.any())

@@ -146,3 +146,94 @@ def test_vector_norm_and_rotate_by_vector_equal_numpy() -> None:
             )
             assert _same(frames.rotate_by_vector(x, w), want)
     assert frames.vector_norm([3.0, 4.0]) == 5.0  # not an array: numpy's own call
+
+
+# -- the daemon around the pipeline (docs/decisions.md §8, third round) -------------------
+
+
+def _annotation_circles_ref(result, camera):  # type: ignore[no-untyped-def]
+    """docs.annotation_circles as it was, with np.clip (the reference)."""
+    size = camera.pixel_size_map_rad
+    out = []
+    for o in result.objects:
+        u, v = o.centroid_px
+        if not (math.isfinite(u) and math.isfinite(v)):
+            continue
+        iu = int(np.clip(u, 0, camera.width - 1))
+        iv = int(np.clip(v, 0, camera.height - 1))
+        px = float(size[iv, iu])
+        r_px = o.angular_radius_rad / px if px > 0 and math.isfinite(px) else 5.0
+        label = f"{o.state} {o.track_id}"
+        if math.isfinite(o.ttc_s):
+            label += f" ttc {o.ttc_s:.1f}s"
+        out.append((float(u), float(v), float(r_px), label))
+    return out
+
+
+def test_annotation_circles_clip_on_floats_as_np_clip_did() -> None:
+    from tcm_companion.core.classify import Classification
+    from tcm_companion.core.pipeline import FrameResult, ObjectResult
+    from tcm_companion.flightlog.docs import annotation_circles
+
+    cam = Equirectangular(360, 220)
+    rng = np.random.default_rng(7)
+    b = np.array([1.0, 0.0, 0.0])
+    c = Classification("moving", "", disparity=0.4)
+    edges = [-1e9, -1.0, -0.5, -0.0, 0.0, 0.4, 0.5, 0.999, 1.0, 218.5, 219.0, 219.5, 220.0]
+    edges += [358.9999, 359.0, 359.5, 360.0, 361.0, 1e9, math.nan, math.inf, -math.inf]
+    coords = [*edges, *rng.uniform(-50.0, 450.0, 300)]
+    objs = []
+    for i, u in enumerate(coords):
+        v = coords[(7 * i + 3) % len(coords)]
+        for uu, vv in ((u, v), (np.float64(u), np.float64(v)), (float(v), float(u))):
+            ttc = math.nan if i % 3 == 0 else float(rng.uniform(0.1, 9.0))
+            objs.append(
+                ObjectResult(
+                    i, True, "moving", "", b, b, b, 0.1, 0.0, 0.02, (uu, vv), c, ttc, False, 1.0
+                )
+            )
+    result = FrameResult(0, 0, tuple(objs), True, None, {})
+    assert annotation_circles(result, cam) == _annotation_circles_ref(result, cam)
+
+
+def test_input_rate_count_by_bisection_equals_the_count_of_newer_arrivals() -> None:
+    from tcm_companion.service.inputs import InputMonitor, InputSpec
+
+    rng = np.random.default_rng(3)
+    for k in range(40):
+        spec = InputSpec("attitude", float(rng.choice([10.0, 50.0])), 200_000, window_us=2_000_000)
+        mon = InputMonitor(spec, 0)
+        t = 0
+        for _ in range(int(rng.integers(0, 400))):
+            t += int(rng.choice([0, 1, 20_000, 20_000, 20_001, 300_000]))  # ties included
+            if k % 4 == 0 and rng.random() < 0.01:
+                t -= 50_000  # a clock going back starts the window over
+            mon.update(t, bool(rng.random() > 0.05))
+            now = t + int(rng.integers(0, 3_000_000))
+            if rng.random() < 0.3 and mon._arrivals:  # the window's edge on an arrival
+                now = int(rng.choice(list(mon._arrivals))) + spec.window_us
+            st = mon.status(now)
+            arrivals = list(mon._arrivals)
+            lo = now - spec.window_us
+            n = sum(1 for a in arrivals if a > lo)  # the count as it was written
+            since = min(mon._since_us, now)
+            span_us = min(spec.window_us, max(now - since, 1))
+            assert st.rate_hz == n / (span_us / 1e6)
+
+
+def test_any_nonzero_of_a_frame_equals_numpys_any() -> None:
+    from tcm_companion.io.cameras.reader import _any_nonzero
+
+    rng = np.random.default_rng(5)
+    h, w = 22, 36
+    frames = [np.zeros((h, w, 3), np.uint8), rng.integers(0, 256, (h, w, 3), dtype=np.uint8)]
+    for idx in [(0, 0, 0), (h - 1, w - 1, 2), (h // 2, 0, 1), (0, w - 1, 2), (h - 1, 0, 0)]:
+        z = np.zeros((h, w, 3), np.uint8)
+        z[idx] = int(rng.integers(1, 256))
+        frames.append(z)
+    big = np.zeros((2 * h, 2 * w, 3), np.uint8)
+    big[1, 1, 1] = 7  # only in the rows/columns a strided view skips
+    frames += [big[::2, ::2], big[1::2, 1::2], np.asfortranarray(frames[3]), frames[1][:, ::-1]]
+    for f in frames:
+        assert f.shape[2] == 3 and f.dtype == np.uint8
+        assert _any_nonzero(f) is bool(f.any())

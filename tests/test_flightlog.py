@@ -836,3 +836,36 @@ def test_a_deterministic_writer_sleeps_while_its_queue_is_empty(tmp_path: Path) 
     finally:
         w.stop()
     assert w.stats.writer_cpu_s < 0.2, w.stats.writer_cpu_s
+
+
+def test_a_live_writer_is_woken_by_frames_not_by_every_item(tmp_path: Path) -> None:
+    """Live, the writer thread wakes for a frame (25 Hz), a half-full queue, its own
+    timers or stop, and writes what came in meanwhile with it: a wake-up per MAVLink
+    datagram or result cost the loop a futex call and a GIL hand-over each (issue 15,
+    docs/decisions.md §8, third round). Before, every item woke it."""
+    w = FlightLogWriter(
+        LoggingConfig(flush_interval_s=5.0, queue_items=64),
+        tmp_path,
+        wall_minus_mono_ns=WALL,
+        free_check_interval_s=5.0,
+    )
+    w.start({})
+    try:
+        time.sleep(0.1)  # past the first free-space check
+        for i in range(10):
+            assert w.log_mavlink("in", T0 + i, b"\xfd" + bytes(20))
+        time.sleep(0.3)
+        assert w.stats.messages_logged == 0 and w.stats.queue_depth == 10  # not woken
+        assert w.log_frame(0, T0 + 20, np.zeros((4, 6, 3), np.uint8))  # a frame wakes it
+        assert wait_for(lambda: w.stats.frames_logged == 1)
+        assert w.stats.messages_logged == 10  # the items before it went with it
+        for i in range(31):
+            assert w.log_json(topics.HEALTH, T0 + 100 + i, {"i": i})
+        time.sleep(0.3)
+        assert w.stats.messages_logged == 10  # 31 of 64 queued: still asleep
+        assert w.log_json(topics.HEALTH, T0 + 200, {"i": 31})  # the 32nd: half full
+        assert wait_for(lambda: w.stats.messages_logged == 42)
+    finally:
+        w.stop()
+    s = w.stats
+    assert (s.messages_logged, s.frames_logged, s.messages_dropped_queue) == (42, 1, 0)

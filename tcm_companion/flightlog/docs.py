@@ -11,8 +11,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
-
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult, ObjectResult
 from ..mavlink.outputs import body_azel_rad, object_range_m
@@ -94,8 +92,10 @@ def annotation_circles(
         u, v = o.centroid_px
         if not (math.isfinite(u) and math.isfinite(v)):
             continue
-        iu = int(np.clip(u, 0, camera.width - 1))
-        iv = int(np.clip(v, 0, camera.height - 1))
+        # np.clip's value for a finite scalar, on Python floats (np.clip on a scalar is
+        # ~3 µs of wrapper per call; tests/test_fast_paths.py holds the two equal).
+        iu = int(min(max(u, 0), camera.width - 1))
+        iv = int(min(max(v, 0), camera.height - 1))
         px = float(size[iv, iu])
         r_px = o.angular_radius_rad / px if px > 0 and math.isfinite(px) else 5.0
         label = f"{o.state} {o.track_id}"

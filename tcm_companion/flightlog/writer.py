@@ -6,7 +6,11 @@ Writing
 documents from the daemon's asyncio thread through non-blocking ``log_*`` calls into one
 bounded queue (``[logging] queue_items``). A full queue costs the item (counted), never a
 wait. ONE writer thread does everything else: JPEG/PNG encoding, JSON and protobuf
-serialisation, MCAP framing, compression and file IO.
+serialisation, MCAP framing, compression and file IO. It is woken by each frame, by a
+half-full queue and by its own timers, not by every item: the MAVLink bytes and results
+between two frames are written together (a wake-up per item cost the daemon's loop a
+futex call and a GIL hand-over each; docs/decisions.md §8). Its flush timer still runs,
+so the crash-safety bound below holds without frames too.
 
 *Ownership.* ``log_frame`` keeps a reference to the image array, it does not copy it: the
 caller must not modify a frame after handing it over (the daemon never does: a captured
@@ -413,7 +417,18 @@ class FlightLogWriter:
         self._rotate_bytes = int(config.rotate_size_mb * _MB)
         self._min_free_bytes = config.min_free_mb * _MB
 
-        self._q: queue.Queue[Any] = queue.Queue(maxsize=config.queue_items)
+        # A SimpleQueue (put and get in C, no Python-level Condition), bounded by the
+        # producers themselves: they check the depth and put under ``_lock``, which they
+        # take for the counts anyway, so it never holds more than ``queue_items`` items.
+        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._maxsize = int(config.queue_items)
+        # Live, the writer thread sleeps until a frame is queued (25 Hz), the queue is
+        # half full, its own timers are due or it is stopped: each wake-up is a futex
+        # call in the producer and a GIL hand-over, and the link's bytes and the results
+        # (~6 items a frame) ride along with the frames. Deterministic: woken per item
+        # (a producer waiting for the counts, wait_drained, must not wait for a frame).
+        self._wake = threading.Event()
+        self._wake_depth = max(1, self._maxsize // 2)
         self._lock = threading.Lock()
         self._accepting = False
         self._started = False
@@ -490,8 +505,8 @@ class FlightLogWriter:
         t0 = time.monotonic()
         self._drain_deadline = t0 + 0.8 * max(timeout_s, 0.0)
         self._stop_evt.set()
-        with contextlib.suppress(queue.Full):
-            self._q.put_nowait(_STOP)
+        self._q.put(_STOP)  # (beyond the bound: it carries no data)
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(max(0.0, t0 + timeout_s - time.monotonic()))
             if self._thread.is_alive():
@@ -534,34 +549,36 @@ class FlightLogWriter:
         return self._put((_JSON, topic, t_us, doc))
 
     def _put(self, item: _Item) -> bool:
-        ok = False
-        if self._accepting:
-            try:
-                if self.deterministic:  # wait for room (a simulation's time does not pass)
-                    while self._accepting and self.alive:
-                        try:
-                            self._q.put(item, timeout=0.05)
-                            ok = True
-                            break
-                        except queue.Full:
-                            continue
-                else:
-                    self._q.put_nowait(item)
-                    ok = True
-            except Exception:  # queue.Full, or anything: never raise into the daemon
-                pass
         c = self._counts
-        with self._lock:  # spelt out: this is the daemon's path (FlightLogStats.count is not)
-            if item[0] == _FRAME:
-                if ok:
-                    c.frames_queued += 1
-                else:
-                    c.frames_dropped_queue += 1
-            elif ok:
-                c.messages_queued += 1
-            else:
-                c.messages_dropped_queue += 1
-        return ok
+        q = self._q
+        while True:
+            with self._lock:  # spelt out: this is the daemon's path (FlightLogStats.count is not)
+                ok = wait = False
+                try:
+                    depth = q.qsize()
+                    if self._accepting and depth < self._maxsize:
+                        q.put(item)
+                        ok = True
+                        if item[0] == _FRAME or depth + 1 >= self._wake_depth:
+                            self._wake.set()
+                    else:
+                        # Deterministic: wait for room (a simulation's time does not pass
+                        # meanwhile). Live, a full queue costs the item.
+                        wait = self.deterministic and self._accepting and self.alive
+                except Exception:  # anything: never raise into the daemon
+                    ok = wait = False
+                if not wait:
+                    if item[0] == _FRAME:
+                        if ok:
+                            c.frames_queued += 1
+                        else:
+                            c.frames_dropped_queue += 1
+                    elif ok:
+                        c.messages_queued += 1
+                    else:
+                        c.messages_dropped_queue += 1
+                    return ok
+            time.sleep(0.0005)
 
     # -- state -------------------------------------------------------------------------
 
@@ -629,12 +646,26 @@ class FlightLogWriter:
             wake = min(next_flush, self._next_free_check)
             if self._fault:
                 wake = min(wake, self._next_retry)
-            try:
-                item = self._q.get(timeout=max(0.0, wake - time.monotonic()))
-            except queue.Empty:
-                item = None
-            if item is not None and item is not _STOP:
-                self._process(item)
+            timeout = max(0.0, wake - time.monotonic())
+            if self.deterministic:
+                try:
+                    item = self._q.get(timeout=timeout)
+                except queue.Empty:
+                    item = None
+                if item is not None and item is not _STOP:
+                    self._process(item)
+            else:
+                # Woken by a frame (or a half-full queue, or stop), not by every item:
+                # what came in meanwhile (the link's bytes, results) is written with it.
+                self._wake.wait(timeout)
+                self._wake.clear()
+                while True:
+                    try:
+                        item = self._q.get_nowait()
+                    except queue.Empty:
+                        break
+                    if item is not _STOP:
+                        self._process(item)
             now = time.monotonic()
             self._housekeeping(now)
             if now >= next_flush:

@@ -20,6 +20,7 @@ a clock.
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass
 
@@ -121,7 +122,10 @@ class InputMonitor:
         age = now_us - self._arrivals[-1]
         alive = age <= spec.timeout_us
         lo = now_us - spec.window_us
-        n = sum(1 for t in self._arrivals if t > lo)
+        # Arrivals newer than lo. They are in time order (update() starts over when a
+        # time goes back), so the count is a bisection, not a pass over up to
+        # 2 × rate × window of them (the attitude's ~200, at every frame).
+        n = len(self._arrivals) - bisect_right(self._arrivals, lo)
         # Before a whole window has passed since the start (or since the input came
         # back), measure over the time there was, and do not judge it yet.
         since = min(self._since_us, now_us)

@@ -218,6 +218,48 @@ def digest(resolutions: list[tuple[int, int]], n_frames: int) -> list[str]:
     return lines
 
 
+def floor(resolutions: list[tuple[int, int]], n_frames: int) -> str:
+    """How much of a frame is OpenCV's own work: the thread CPU spent inside ``cv2``
+    calls, per frame, with cProfile on the thread CPU clock over the bench's frames
+    (method tcm, default configuration). That is what the pipeline would still cost if
+    every line of Python and numpy around those calls took no time at all: a floor for
+    any rewrite that keeps the same OpenCV work (same points, same images)."""
+    import cProfile
+    import pstats
+
+    AppConfig, _, _, _, make_scenario = _imports()
+    cv2.setNumThreads(1)
+    names = {n for n in dir(cv2) if callable(getattr(cv2, n, None))}
+    lines = [
+        "thread-CPU ms per frame under cProfile (method tcm); 'opencv': inside cv2 calls",
+        f"{'resolution':<11} {'profiled total':>14} {'opencv':>8}  largest OpenCV calls",
+    ]
+    for w, h in resolutions:
+        duration = (n_frames + 30) / 25.0
+        sim = make_scenario("T90", duration_s=duration, seed=0)
+        sim = make_scenario("T90", camera=sim.camera.scaled(w, h), duration_s=duration, seed=0)
+        frames = list(sim.iter_frames())
+        _time(AppConfig(), sim, frames[:60], time.thread_time)  # one-off costs
+        prof = cProfile.Profile(time.thread_time)
+        prof.enable()
+        _time(AppConfig(), sim, frames, time.thread_time)
+        prof.disable()
+        stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+        total = 0.0
+        per: dict[str, float] = {}
+        for (file, _, func), (_, _, tottime, _, _) in stats.items():
+            total += tottime
+            if file == "~" and func.startswith("<") and func[1:-1] in names:
+                per[func[1:-1]] = tottime
+        n = len(frames)
+        top = sorted(per.items(), key=lambda kv: -kv[1])[:5]
+        lines.append(
+            f"{w:>4}x{h:<6} {total / n * 1e3:>14.2f} {sum(per.values()) / n * 1e3:>8.2f}  "
+            + ", ".join(f"{k} {v / n * 1e3:.2f}" for k, v in top)
+        )
+    return "\n".join(lines)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--resolutions", nargs="+", default=["360x220", "900x550"])
@@ -233,7 +275,15 @@ def main() -> int:
         help="instead: a SHA-256 of every result bit per resolution and configuration "
         "(compare two trees' outputs with diff)",
     )
+    ap.add_argument(
+        "--floor",
+        action="store_true",
+        help="instead: the thread CPU per frame spent inside OpenCV calls (cProfile)",
+    )
     args = ap.parse_args()
+    if args.floor:
+        print(floor([tuple(int(x) for x in r.split("x")) for r in args.resolutions], args.frames))  # type: ignore[misc]
+        return 0
     if args.digest:
         res_d = [tuple(int(x) for x in r.split("x")) for r in args.resolutions]
         lines = digest(res_d, args.frames)  # type: ignore[arg-type]

@@ -80,6 +80,16 @@ def _frozen(sim: Any, frames: list[tuple[int, int, np.ndarray]]) -> Any:
     return _Frozen()
 
 
+def _bench_frames(w: int, h: int, n_frames: int) -> tuple[Any, list[tuple[int, int, np.ndarray]]]:
+    """The bench's frames: simulated T90 at ``w``×``h``, rendered once (30 frames of
+    warm-up beyond ``n_frames``)."""
+    make_scenario = _imports()[4]
+    duration = (n_frames + 30) / 25.0
+    sim = make_scenario("T90", duration_s=duration, seed=0)
+    sim = make_scenario("T90", camera=sim.camera.scaled(w, h), duration_s=duration, seed=0)
+    return sim, list(sim.iter_frames())
+
+
 def _time(
     config: Any, sim: Any, frames: list[tuple[int, int, np.ndarray]], clock: Any
 ) -> dict[str, list[float]]:
@@ -97,16 +107,13 @@ def _time(
 def measure(
     resolutions: list[tuple[int, int]], methods: list[str], n_frames: int, repeats: int, wall: bool
 ) -> dict[str, Any]:
-    AppConfig, _, _, with_method, make_scenario = _imports()
+    AppConfig, _, _, with_method, _ = _imports()
     cv2.setNumThreads(1)
     clock = time.perf_counter if wall else time.thread_time
     out: dict[str, Any] = {"clock": "wall" if wall else "thread CPU", "results": {}}
     base = AppConfig()
     for w, h in resolutions:
-        duration = (n_frames + 30) / 25.0
-        sim = make_scenario("T90", duration_s=duration, seed=0)
-        sim = make_scenario("T90", camera=sim.camera.scaled(w, h), duration_s=duration, seed=0)
-        frames = list(sim.iter_frames())
+        sim, frames = _bench_frames(w, h, n_frames)
         _time(base, sim, frames[:60], clock)  # one-off costs, untimed
         pooled: dict[str, dict[str, list[float]]] = {m: {s: [] for s in STAGES} for m in methods}
         for _ in range(repeats):
@@ -197,14 +204,11 @@ def _digest_one(config: Any, sim: Any, frames: list[tuple[int, int, np.ndarray]]
 
 def digest(resolutions: list[tuple[int, int]], n_frames: int) -> list[str]:
     """One line per resolution and configuration: its results' SHA-256 (16 hex digits)."""
-    AppConfig, _, _, with_method, make_scenario = _imports()
+    AppConfig, _, _, with_method, _ = _imports()
     cv2.setNumThreads(1)
     lines = []
     for w, h in resolutions:
-        duration = (n_frames + 30) / 25.0
-        sim = make_scenario("T90", duration_s=duration, seed=0)
-        sim = make_scenario("T90", camera=sim.camera.scaled(w, h), duration_s=duration, seed=0)
-        frames = list(sim.iter_frames())
+        sim, frames = _bench_frames(w, h, n_frames)
         for method, source in DIGEST_CONFIGS:
             config = with_method(AppConfig(), method)
             if source is not None:
@@ -227,7 +231,7 @@ def floor(resolutions: list[tuple[int, int]], n_frames: int) -> str:
     import cProfile
     import pstats
 
-    AppConfig, _, _, _, make_scenario = _imports()
+    AppConfig = _imports()[0]
     cv2.setNumThreads(1)
     names = {n for n in dir(cv2) if callable(getattr(cv2, n, None))}
     lines = [
@@ -235,10 +239,7 @@ def floor(resolutions: list[tuple[int, int]], n_frames: int) -> str:
         f"{'resolution':<11} {'profiled total':>14} {'opencv':>8}  largest OpenCV calls",
     ]
     for w, h in resolutions:
-        duration = (n_frames + 30) / 25.0
-        sim = make_scenario("T90", duration_s=duration, seed=0)
-        sim = make_scenario("T90", camera=sim.camera.scaled(w, h), duration_s=duration, seed=0)
-        frames = list(sim.iter_frames())
+        sim, frames = _bench_frames(w, h, n_frames)
         _time(AppConfig(), sim, frames[:60], time.thread_time)  # one-off costs
         prof = cProfile.Profile(time.thread_time)
         prof.enable()
@@ -281,19 +282,18 @@ def main() -> int:
         help="instead: the thread CPU per frame spent inside OpenCV calls (cProfile)",
     )
     args = ap.parse_args()
+    res = [tuple(int(x) for x in r.split("x")) for r in args.resolutions]
     if args.floor:
-        print(floor([tuple(int(x) for x in r.split("x")) for r in args.resolutions], args.frames))  # type: ignore[misc]
+        print(floor(res, args.frames))  # type: ignore[arg-type]
         return 0
     if args.digest:
-        res_d = [tuple(int(x) for x in r.split("x")) for r in args.resolutions]
-        lines = digest(res_d, args.frames)  # type: ignore[arg-type]
+        lines = digest(res, args.frames)  # type: ignore[arg-type]
         print("all:", hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16])
         return 0
     if args.compare:
         with open(args.compare[0]) as fa, open(args.compare[1]) as fb:
             print(compare(json.load(fa), json.load(fb)))
         return 0
-    res = [tuple(int(x) for x in r.split("x")) for r in args.resolutions]
     data = measure(res, args.methods, args.frames, args.repeats, args.wall)  # type: ignore[arg-type]
     print(_table(data))
     if args.json:

@@ -11,7 +11,14 @@ from pathlib import Path
 import pytest
 
 from tcm_companion import cli
-from tcm_companion.io.outputs import OutputExists, atomic_path, atomic_text
+from tcm_companion.io.outputs import (
+    SCENARIO_DIR,
+    OutputExists,
+    OutputKind,
+    atomic_path,
+    atomic_text,
+    text_starting,
+)
 
 EXAMPLE = Path(__file__).parent / "data" / "examples" / "EX-T90"
 
@@ -30,9 +37,13 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 def test_replay_never_replaces_an_output_unless_forced(scenario: Path, tmp_path: Path) -> None:
     out = tmp_path / "results.csv"
-    out.write_text("precious\n")
+    # an earlier run's results (--force replaces only a results CSV: issue 24)
+    precious = (
+        "frame,t_us,track_id,azimuth_deg,elevation_deg,angular_radius_deg,state,disparity,ttc_s\n"
+    )
+    out.write_text(precious)
     assert cli.main(["replay", str(scenario), "--results", str(out), "-q"]) == 2
-    assert out.read_text() == "precious\n"
+    assert out.read_text() == precious
     assert cli.main(["replay", str(scenario), "--results", str(out), "-q", "--force"]) == 0
     assert len(_rows(out)) > 50
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".results.csv")]
@@ -84,26 +95,33 @@ def test_a_failed_replay_leaves_no_output(
 
 def test_sim_export_into_an_existing_scenario_needs_force(tmp_path: Path) -> None:
     dest = tmp_path / "TS"
-    dest.mkdir()
-    (dest / "mine.txt").write_text("keep")
     args = ["sim", "export", "TS", str(dest), "--duration", "0.2", "--resolution", "90x55"]
+    assert cli.main(args) == 0  # an earlier export
+    first = (dest / "scenario.toml").read_text()
+    (dest / "frames.csv").write_text("frame,t_us\n")  # to see that it is replaced
     assert cli.main(args) == 2
-    assert (dest / "mine.txt").read_text() == "keep"
+    assert (dest / "frames.csv").read_text() == "frame,t_us\n"
     assert cli.main([*args, "--force"]) == 0
-    assert (dest / "scenario.toml").is_file() and not (dest / "mine.txt").exists()
+    assert (dest / "scenario.toml").read_text() == first
+    assert (dest / "frames.csv").read_text() != "frame,t_us\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["TS"]  # no temporaries left
+    # a directory holding anything but a scenario's files is never replaced (issue 24)
+    (dest / "mine.txt").write_text("keep")
+    assert cli.main([*args, "--force"]) == 2
+    assert (dest / "mine.txt").read_text() == "keep"
 
 
 def test_atomic_helpers(tmp_path: Path) -> None:
+    text = OutputKind("text", text_starting("one"))
     p = tmp_path / "a.txt"
-    with atomic_text(p) as fh:
+    with atomic_text(p, kind=text) as fh:
         fh.write("one")
         assert not p.exists()  # not in place before it is complete
     assert p.read_text() == "one"
     with pytest.raises(OutputExists):
-        with atomic_text(p):
+        with atomic_text(p, kind=text):
             pass
-    with pytest.raises(ValueError), atomic_path(tmp_path / "d", is_dir=True) as d:
+    with pytest.raises(ValueError), atomic_path(tmp_path / "d", kind=SCENARIO_DIR) as d:
         (d / "x").write_text("half")
         raise ValueError("interrupted")
     assert not (tmp_path / "d").exists()

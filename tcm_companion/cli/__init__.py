@@ -22,6 +22,7 @@ import sys
 from .. import __version__
 from . import bench, evaluate, logs, replay, service, sim
 from .common import config_from_args
+from .interrupts import EXIT_SIGINT, EXIT_SIGTERM, Terminated, sigterm_raises
 
 __all__ = ["build_parser", "config_from_args", "main"]
 
@@ -136,7 +137,14 @@ def _main(argv: list[str] | None) -> int:
 
     tune_allocator()
     try:
-        return int(args.func(args))
+        with sigterm_raises():
+            return int(args.func(args))
+    except KeyboardInterrupt:  # the outputs being written are gone (their finally ran)
+        print("\ninterrupted (SIGINT)", file=sys.stderr)
+        return EXIT_SIGINT
+    except Terminated:
+        print("terminated (SIGTERM)", file=sys.stderr)
+        return int(getattr(args, "sigterm_status", EXIT_SIGTERM))
     except BrokenPipeError:
         raise  # stdout closed by its reader: main ends quietly, not "error: Broken pipe"
     except (ValueError, OSError) as exc:

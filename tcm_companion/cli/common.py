@@ -32,7 +32,8 @@ METHODS: tuple[str, ...] = ("tcm", "ecm", "bsm", "fused")
 CAMERA_PRESETS: tuple[str, ...] = ("panorama", "pinhole", "fisheye")
 
 FORCE_HELP = (
-    "replace the output if it exists (it is written beside it and renamed into place when complete)"
+    "replace the output if it exists and is one this program wrote (it is written beside it"
+    " and renamed into place when complete)"
 )
 
 CONFIG_EPILOG = (
@@ -78,10 +79,16 @@ def config_from_args(args: argparse.Namespace) -> AppConfig:
     (``TCM_COMPANION__TABLE__KEY``) > ``--config`` (or ./config.toml) > defaults."""
     from ..config import load_config
 
-    path = args.config
+    return load_config(config_file(args), environ=os.environ, sets=list(args.set))
+
+
+def config_file(args: argparse.Namespace) -> str | None:
+    """The configuration file a command reads (``--config``, else ./config.toml if
+    present): one of its inputs, which no output may overwrite."""
+    path = getattr(args, "config", None)
     if path is None and DEFAULT_CONFIG.is_file():
-        path = DEFAULT_CONFIG
-    return load_config(path, environ=os.environ, sets=list(args.set))
+        return str(DEFAULT_CONFIG)
+    return path
 
 
 def add_log_level_argument(p: argparse.ArgumentParser) -> None:

@@ -17,6 +17,7 @@ from .common import (
     add_command,
     add_config_arguments,
     add_quiet_argument,
+    config_file,
     config_from_args,
     positive_seconds,
     progress,
@@ -27,6 +28,9 @@ from .common import (
 
 if TYPE_CHECKING:
     from ..config import AppConfig
+
+#: The first line of report.txt (how an earlier report is recognised, to be replaced).
+REPORT_FIRST_LINE = "Per scenario (TCM at the configured threshold):"
 
 #: Where ``eval`` writes its plots and report.txt without ``--out``.
 DEFAULT_EVAL_OUT = "out/eval"
@@ -94,6 +98,39 @@ class _FrameCounter:
         if not result.attitude_ok and not skipped:
             self.no_attitude += 1
         self.bar.update(1)
+
+
+def _report_kind() -> Any:
+    """report.txt: recognised by its first line."""
+    from ..io.outputs import OutputKind, text_starting
+
+    return OutputKind("eval report", text_starting(REPORT_FIRST_LINE))
+
+
+def _label(res: tuple[int, int] | None) -> str:
+    return "native" if res is None else f"{res[0]}x{res[1]}"
+
+
+def check_out_dir(
+    out: Path,
+    inputs: Sequence[str | None],
+    resolutions: Sequence[tuple[int, int] | None],
+    intervals: bool = False,
+    report: bool = False,
+) -> None:
+    """Before any work: ``out`` is not, does not lie inside and does not contain an input,
+    and the files the evaluation will write there (plots, report.txt) are, if present,
+    ones it wrote (else :class:`~tcm_companion.io.outputs.OutputRefused`)."""
+    from ..io.outputs import PNG_FILE, check_folder
+
+    files = [
+        (f"{kind}_{_label(r)}.png", PNG_FILE) for r in resolutions for kind in ("roc", "disparity")
+    ]
+    if intervals:
+        files.append(("separation.png", PNG_FILE))
+    if report:
+        files.append(("report.txt", _report_kind()))
+    check_folder(out, inputs=inputs, files=files)
 
 
 def run_evaluation(
@@ -177,7 +214,7 @@ def run_evaluation(
             group_evals.append(ev)
         evals.extend(group_evals)
         records = [r for ev in group_evals for r in ev.records]
-        label = "native" if res is None else f"{res[0]}x{res[1]}"
+        label = _label(res)
         groups.append((label, summarize(records, cls)))
         if len(group_evals) > 1:
             why = _no_decision(records, cls)
@@ -188,7 +225,7 @@ def run_evaluation(
             plot_roc(records, cls, out_dir / f"roc_{label}.png", f"ROC, pooled scenarios, {label}")
             plot_disparity_over_time(group_evals, cls, out_dir / f"disparity_{label}.png")
     parts = [
-        "Per scenario (TCM at the configured threshold):",
+        REPORT_FIRST_LINE,
         per_scenario_table(evals, cls),
         "",
         "Per method, static and moving flights pooled (paper Tables 2-3, Fig. 10):",
@@ -222,6 +259,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
     intervals = tuple(range(1, 41)) if args.intervals else ()
     out = Path(args.out)
+    inputs = [*args.scenarios, config_file(args)]
+    check_out_dir(out, inputs, resolutions, bool(intervals), report=True)
     report = run_evaluation(
         scenarios,
         config,
@@ -231,8 +270,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
         with_bsm=not args.no_bsm,
         progress_bars=not args.quiet,
     )
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "report.txt").write_text(report + "\n")
+    from ..io.outputs import atomic_text
+
+    with atomic_text(out / "report.txt", kind=_report_kind(), force=True, inputs=inputs) as fh:
+        fh.write(report + "\n")
     print(report)
     print(f"report written to {out / 'report.txt'}")
     return 0
@@ -243,12 +284,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..sim import make_scenario
 
     config = config_from_args(args)
+    out = Path(args.out)
+    check_out_dir(out, [config_file(args)], [None])
     print("Simulating the paper's flights TS, T45, T90 (360x220 panorama) and evaluating TCM,")
     print("ECM, BSM and fused TCM+ECM on them...", flush=True)
     scenarios = [
         make_scenario(n, duration_s=args.duration, seed=args.seed) for n in ("TS", "T45", "T90")
     ]
-    out = Path(args.out)
     print(run_evaluation(scenarios, config, [None], out, progress_bars=not args.quiet))
     return 0
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from .common import (
@@ -12,6 +13,7 @@ from .common import (
     TolerantFrames,
     add_command,
     add_config_arguments,
+    config_file,
     config_from_args,
     is_log,
     require_inputs,
@@ -20,10 +22,11 @@ from .common import (
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from ..io.outputs import atomic_path
-    from ..logtools.convert import log_to_scenario
+    from ..io.outputs import SCENARIO_DIR, atomic_path
+    from ..logtools.convert import check_log_path, log_to_scenario
 
-    with atomic_path(args.scenario, force=args.force, is_dir=True) as tmp:
+    check_log_path(Path(args.log))  # a missing log is named as such, not as an output
+    with atomic_path(args.scenario, kind=SCENARIO_DIR, force=args.force, inputs=[args.log]) as tmp:
         summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id)
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -32,11 +35,12 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from ..io.outputs import atomic_path
+    from ..io.outputs import FLIGHT_LOG, atomic_path
     from ..logtools.convert import scenario_to_log
 
     config = config_from_args(args) if args.results else None
-    with atomic_path(args.log, force=args.force) as tmp:
+    inputs = [args.scenario, config_file(args) if args.results else None]
+    with atomic_path(args.log, kind=FLIGHT_LOG, force=args.force, inputs=inputs) as tmp:
         scenario_to_log(
             args.scenario,
             tmp,
@@ -50,14 +54,22 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 def cmd_plot(args: argparse.Namespace) -> int:
     try:
-        from ..logtools.plot import plot_log, plot_scenario
+        from ..logtools.plot import PLOT_NAMES, plot_log, plot_scenario
     except ImportError as exc:
         if getattr(exc, "name", "") and str(exc.name).startswith("matplotlib"):
             print(f"error: plot: {TOOLS_HINT}", file=sys.stderr)
             return 2
         raise
 
-    if is_log(args.source):
+    from ..io.outputs import PNG_FILE, check_folder
+
+    log = is_log(args.source)
+    check_folder(
+        args.out,
+        inputs=[args.source, None if log else config_file(args)],
+        files=[(f"{name}.png", PNG_FILE) for name in PLOT_NAMES],
+    )
+    if log:
         paths = plot_log(args.source, args.out)
     else:
         from ..io.scenario import load_scenario

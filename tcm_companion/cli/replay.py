@@ -13,6 +13,7 @@ from .common import (
     add_command,
     add_config_arguments,
     add_quiet_argument,
+    config_file,
     config_from_args,
     is_log,
     non_negative_number,
@@ -22,6 +23,12 @@ from .common import (
 )
 
 
+def _inputs(args: argparse.Namespace) -> list[str | None]:
+    """What replay reads, which --results must not overwrite: the scenario or log, the
+    configuration file."""
+    return [args.scenario, config_file(args)]
+
+
 def cmd_replay_log(args: argparse.Namespace) -> int:
     """A flight log: recompute every processed frame and compare with what was logged.
 
@@ -29,14 +36,14 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     in the summary line); ``--check`` fails on it, as on a frame that differs and on a log
     with no frame to compare."""
     from ..flightlog.reader import LogReport
-    from ..io.outputs import atomic_text
+    from ..io.outputs import RESULTS_CSV, atomic_text
     from ..io.results import ResultsWriter
     from ..replay.log import ROUNDING_REL_TOL, compare, replay_log
 
     rows = mismatched = rounding = beyond = frames = 0
     diffs: list[str] = []
     report = LogReport()
-    with atomic_text(args.results, force=args.force) as fh:
+    with atomic_text(args.results, kind=RESULTS_CSV, force=args.force, inputs=_inputs(args)) as fh:
         writer = ResultsWriter(fh)
         for frame in replay_log(args.scenario, args.camera_id, report):
             writer.write(frame.result)
@@ -165,7 +172,7 @@ def _attitude_gaps(
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from ..io.outputs import atomic_text
+    from ..io.outputs import RESULTS_CSV, atomic_text
     from ..io.results import ResultsWriter
     from ..io.scenario import load_scenario
     from ..replay.scenario import run_replay, with_method
@@ -182,7 +189,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     reported = 0
     no_attitude: list[tuple[int, int]] = []  # readable frames no attitude covered
     with (
-        atomic_text(args.results, force=args.force) as fh,
+        atomic_text(args.results, kind=RESULTS_CSV, force=args.force, inputs=_inputs(args)) as fh,
         progress(scenario.n_frames, scenario.name, not args.quiet) as bar,
     ):
         writer = ResultsWriter(fh)

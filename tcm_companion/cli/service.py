@@ -33,6 +33,7 @@ from .common import (
     add_config_arguments,
     add_log_level_argument,
     add_set_argument,
+    config_file,
     config_from_args,
     percent,
     positive_seconds,
@@ -308,6 +309,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ..service.endpoint_setup import resolve_state_paths
 
     config = dataclasses.replace(config, mavlink=resolve_state_paths(config.mavlink, state))
+    inputs = _inputs(args, config)
+    run_log_dir = None
+    if config.logging.enabled:
+        from ..logsetup import log_directory
+
+        run_log_dir = log_directory(config, state)
+    _check_outputs(inputs, run_log_dir, args.summary_json)  # before the flight, not after
     signals = _Signals()
     ran_out: list[bool] = []  # --duration ended the run (not a signal)
 
@@ -398,7 +406,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if isinstance(summary, int):
         return summary
     if args.summary_json:
-        write_summary_json(args.summary_json, summary)
+        write_summary_json(args.summary_json, summary, inputs=inputs, others=[run_log_dir])
     from ..service.plumbing import run_length_text
 
     stopped_by = "" if ran_out else signals.stopped_by(True) or "stop"
@@ -416,8 +424,37 @@ def cmd_run(args: argparse.Namespace) -> int:
     return _Signals.exit_status(True, stopped_by, service=True)
 
 
-def write_summary_json(path: str, summary: Any) -> None:
-    """Latency percentiles, frame accounting and faults of a run, for tools and benches."""
+def _inputs(args: argparse.Namespace, config: AppConfig) -> list[str | None]:
+    """What a run reads from files, which its outputs must not overwrite: the
+    configuration file, and the camera's video, frames or scenario."""
+    src = config.camera.source
+    camera = src.path if src.source in ("file", "frames", "scenario") and src.path else None
+    return [config_file(args), camera]
+
+
+def _check_outputs(
+    inputs: list[str | None], log_dir: str | Path | None, summary_json: str | None
+) -> None:
+    """The flight log's directory (files are added to it, none replaced) and the summary
+    (a summary of an earlier run is replaced, nothing else) destroy no input and are not
+    one another: :mod:`tcm_companion.io.outputs` (OutputRefused: one ``error:`` line)."""
+    from ..io.outputs import SUMMARY_JSON, check_folder, check_output
+
+    if log_dir is not None:
+        check_folder(log_dir, inputs=inputs, others=[summary_json])
+    if summary_json is not None:
+        check_output(summary_json, SUMMARY_JSON, force=True, inputs=inputs, others=[log_dir])
+
+
+def write_summary_json(
+    path: str,
+    summary: Any,
+    *,
+    inputs: list[str | None] | None = None,
+    others: list[Any] | None = None,
+) -> None:
+    """Latency percentiles, frame accounting and faults of a run, for tools and benches;
+    whole or not at all, over an earlier summary only (:data:`~tcm_companion.io.outputs.SUMMARY_JSON`)."""
     import json
 
     import numpy as np
@@ -448,7 +485,12 @@ def write_summary_json(path: str, summary: Any) -> None:
             for k, v in summary.stage_ms.items()
         },
     }
-    Path(path).write_text(json.dumps(doc, indent=2))
+    from ..io.outputs import SUMMARY_JSON, atomic_text
+
+    with atomic_text(
+        path, kind=SUMMARY_JSON, force=True, inputs=inputs or (), others=others or ()
+    ) as fh:
+        fh.write(json.dumps(doc, indent=2))
 
 
 # -- sitl -----------------------------------------------------------------------------------
@@ -477,6 +519,8 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
     printer = _status_printer(args.status_every)
+    if args.log is not None:
+        _check_outputs(_inputs(args, config), args.log, None)
     signals = _Signals()
     if args.clock == "virtual":
         return _run_sitl_virtual(config, args.duration, printer, signals, args.log, min_accuracy)
@@ -613,7 +657,7 @@ def add_parsers(sub: Any) -> None:
     p.add_argument(
         "--summary-json", metavar="FILE", default=None, help="write the run's summary as JSON"
     )
-    p.set_defaults(func=cmd_run)
+    p.set_defaults(func=cmd_run, sigterm_status=0)  # systemd stops it so: a normal end
 
     p = add_command(
         sub,

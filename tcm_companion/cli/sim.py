@@ -33,11 +33,12 @@ def _camera_arg(args: argparse.Namespace) -> Any:
 
 
 def cmd_sim_export(args: argparse.Namespace) -> int:
-    from ..io.outputs import atomic_path
+    from ..io.outputs import SCENARIO_DIR, atomic_path, check_output
     from ..sim import make_scenario
     from ..sim.scene.export import export_scenario
     from ..sim.scene.scenarios import FlightTooLong
 
+    check_output(args.dir, SCENARIO_DIR, force=args.force)  # before rendering, not after
     camera = _camera_arg(args)
     try:
         sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)
@@ -51,7 +52,7 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             seed=args.seed,
         )
-    with atomic_path(args.dir, force=args.force, is_dir=True) as tmp:
+    with atomic_path(args.dir, kind=SCENARIO_DIR, force=args.force) as tmp:
         export_scenario(sim, tmp, detections=args.detections or None)
     print(
         f"wrote {sim.name}: {sim.n_frames} frames, {sim.camera.model_name} "

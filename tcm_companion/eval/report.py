@@ -113,7 +113,12 @@ def _figure(width: float, height: float) -> Figure:
 
 
 def _save(fig: Figure, path: Path) -> None:
-    fig.savefig(path, dpi=DPI)
+    """Whole or not at all; an earlier PNG of that name is replaced, nothing else is
+    (:func:`~tcm_companion.io.outputs.atomic_path`)."""
+    from ..io.outputs import PNG_FILE, atomic_path
+
+    with atomic_path(path, kind=PNG_FILE, force=True) as tmp:
+        fig.savefig(tmp, dpi=DPI)
 
 
 #: How each method's ROC curve is drawn, in drawing order, bottom to top: wide, pale

@@ -46,6 +46,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
 from ..flightlog import topics
+from ..io.outputs import PNG_FILE, atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -206,7 +207,9 @@ def plot_data(data: PlotData, out_dir: str | Path) -> PlotFiles:
     files = PlotFiles(skipped=skipped)
     for name, fig in figures.items():
         path = out / f"{name}.png"
-        fig.savefig(path)
+        # whole or not at all; an earlier PNG of that name is replaced, nothing else is
+        with atomic_path(path, kind=PNG_FILE, force=True) as tmp:
+            fig.savefig(tmp)
         files.append(path)
     return files
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -275,7 +276,26 @@ def _run_daemon_bench(
     extra_sets: tuple[str, ...],
     quota: CpuQuota | None,
 ) -> dict[str, Any]:
-    tmp = Path(workdir or tempfile.mkdtemp(prefix="tcm-bench-daemon-"))
+    if workdir is not None:  # the caller's: kept (a study reuses its rendered frames)
+        return _bench_in(Path(workdir), duration_s, scenario, frames_s, out, extra_sets, quota)
+    # Our own (frames, logs, state: ~70 MB a run) goes at the end, a failure, Ctrl-C or
+    # SIGTERM (tcm_companion.cli.interrupts) included.
+    tmp = Path(tempfile.mkdtemp(prefix="tcm-bench-daemon-"))
+    try:
+        return _bench_in(tmp, duration_s, scenario, frames_s, out, extra_sets, quota)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _bench_in(
+    tmp: Path,
+    duration_s: float,
+    scenario: str,
+    frames_s: float,
+    out: Callable[[str], Any],
+    extra_sets: tuple[str, ...],
+    quota: CpuQuota | None,
+) -> dict[str, Any]:
     frames = tmp / "frames"
     if not any(frames.glob("*.png")):
         out(f"rendering {frames_s:.0f} s of {scenario} to {frames} ...")

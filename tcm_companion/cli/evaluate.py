@@ -253,7 +253,6 @@ def run_evaluation(
 
 def cmd_eval(args: argparse.Namespace) -> int:
     config = config_from_args(args)
-    scenarios = _scenarios(args, config)
     resolutions: list[tuple[int, int] | None] = (
         list(args.resolutions) if args.resolutions else [None]
     )
@@ -261,6 +260,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     out = Path(args.out)
     inputs = [*args.scenarios, config_file(args)]
     check_out_dir(out, inputs, resolutions, bool(intervals), report=True)
+    scenarios = _scenarios(args, config)
     report = run_evaluation(
         scenarios,
         config,

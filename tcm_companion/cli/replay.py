@@ -172,11 +172,13 @@ def _attitude_gaps(
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from ..io.outputs import RESULTS_CSV, atomic_text
+    from ..io.outputs import RESULTS_CSV, atomic_text, check_output
     from ..io.results import ResultsWriter
     from ..io.scenario import load_scenario
     from ..replay.scenario import run_replay, with_method
 
+    # before reading anything: nothing is written over an input or what is not ours
+    check_output(args.results, RESULTS_CSV, force=args.force, inputs=_inputs(args))
     if is_log(args.scenario):
         return cmd_replay_log(args)
     config = with_method(config_from_args(args), args.method, bsm=args.method == "bsm")

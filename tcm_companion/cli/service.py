@@ -440,10 +440,10 @@ def _check_outputs(
     one another: :mod:`tcm_companion.io.outputs` (OutputRefused: one ``error:`` line)."""
     from ..io.outputs import SUMMARY_JSON, check_folder, check_output
 
+    if summary_json is not None:
+        check_output(summary_json, SUMMARY_JSON, force=True, inputs=inputs)
     if log_dir is not None:
         check_folder(log_dir, inputs=inputs, others=[summary_json])
-    if summary_json is not None:
-        check_output(summary_json, SUMMARY_JSON, force=True, inputs=inputs, others=[log_dir])
 
 
 def write_summary_json(

@@ -463,7 +463,10 @@ SIGNAL_CASES = [
     ("export", "cv2:imwrite", 3, "exp", signal.SIGTERM),
     ("export", "cv2:imwrite", 3, "exp", signal.SIGINT),
     ("sim-export", "cv2:imwrite", 3, "sim", signal.SIGTERM),
-]
+    # no earlier log: nothing appears (its writer thread does not hold the exit either)
+    ("import", "tcm_companion.flightlog.writer:FlightLogWriter.log_frame", 3, "l.mcap",
+     signal.SIGTERM),
+]  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -488,6 +491,7 @@ def test_a_signal_mid_write_leaves_no_temporary_and_the_previous_output(
         "replay": ["replay", str(world.scen), "--results", str(out), "--force", "-q"],
         "export": ["export", str(world.log_dir), "--scenario", str(out), "--force"],
         "sim-export": ["sim", "export", "TS", str(out), "--duration", "1", "--force"],
+        "import": ["import", str(world.scen), "--log", str(out)],
     }[command]
     before = _snapshot(work)
     done = _run_gated(tmp_path, target, after, argv, sig, (work, f".{name}.*.tmp"))

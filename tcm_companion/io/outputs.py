@@ -359,6 +359,7 @@ def atomic_text(
     renamed over it (after an fsync) when the ``with`` block ends without an error; on
     an error (or SIGINT/SIGTERM, which the command line turns into one) the temporary
     file is removed and ``path`` is untouched. :func:`check_output` first."""
+    inputs, others = tuple(inputs), tuple(others)  # checked again before the rename
     p = check_output(path, kind, force=force, inputs=inputs, others=others)
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp = ""
@@ -392,6 +393,7 @@ def atomic_path(
     directory when ``kind.is_dir``, else a file name not yet created); moved over
     ``path`` when the ``with`` block ends without an error, removed otherwise (SIGINT and
     SIGTERM included). :func:`check_output` first, and again just before the move."""
+    inputs, others = tuple(inputs), tuple(others)
     p = check_output(path, kind, force=force, inputs=inputs, others=others)
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp: Path | None = None

@@ -122,8 +122,10 @@ def test_cli_replay_writes_the_results_format(tmp_path: Path) -> None:
 
 
 def test_cli_replay_reports_a_broken_scenario(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
-    (tmp_path / "scenario.toml").write_text('format = "tcm-scenario/1"\n')
-    assert main(["replay", str(tmp_path), "--results", str(tmp_path / "r.csv"), "-q"]) == 2
+    sc = tmp_path / "sc"  # the results beside it: inside it, they are refused (issue 24)
+    sc.mkdir()
+    (sc / "scenario.toml").write_text('format = "tcm-scenario/1"\n')
+    assert main(["replay", str(sc), "--results", str(tmp_path / "r.csv"), "-q"]) == 2
     assert "scenario.toml: missing [camera] table" in capsys.readouterr().err
 
 

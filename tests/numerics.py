@@ -49,3 +49,14 @@ def numpy_blas_kernel() -> str:
     matrix products differ between kernels in the last bit (FMA, blocking)."""
     blas = numeric_environment()["numpy_blas"]
     return str(blas).rpartition(" ")[2] if isinstance(blas, str) else "unknown"
+
+
+def numeric_kind() -> str:
+    """The machine kind a recorded digest belongs to: the OpenBLAS kernel numpy runs and
+    the widest group of SIMD loops numpy dispatches to ("Haswell X86_V3"). Both change
+    the renderer's last bits: the kernel in its matrix products, the SIMD group in
+    numpy's own loops (measured: on an AVX2-only AMD EPYC the COLLISION frames differ
+    from those of an AVX-512 Xeon under the same Haswell kernel, and
+    NPY_DISABLE_CPU_FEATURES=X86_V3 changes them again)."""
+    levels = [f for f in numeric_environment()["numpy_simd"] if f.startswith("X86_V")]
+    return f"{numpy_blas_kernel()} {max(levels) if levels else 'baseline'}"

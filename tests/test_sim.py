@@ -26,7 +26,7 @@ from tcm_companion.sim import SCENARIO_NAMES, export_scenario, flight_plan, make
 from tcm_companion.sim.scene.render import Renderer
 from tcm_companion.sim.scene.scenarios import PAPER_SCENARIO_NAMES, euler_zyx_rad, plan_world
 
-from .numerics import numpy_blas_kernel
+from .numerics import numeric_kind
 
 CAMERAS: dict[str, CameraModel] = {
     "equirectangular": Equirectangular(360, 220),
@@ -280,7 +280,7 @@ def test_scenario_catalogue():
 #: HEADON happen not to differ). ``OPENBLAS_CORETYPE=Haswell`` reproduces the first on
 #: the second.
 PAPER_FRAME_SHA256 = {
-    "Haswell": {
+    "Haswell X86_V4": {
         "TS": ("2d2c4a364fb0ad8c", "67bacbdea74bd4b4"),
         "T45": ("9dced490cef0dc3d", "b271e02ea56be858"),
         "T90": ("386c55a9b64334b2", "f1c83803a888de78"),
@@ -290,7 +290,7 @@ PAPER_FRAME_SHA256 = {
         "HEADON": ("2b61b1ac01fcc7c1", "548c345c454e8a7b"),
         "TWO": ("b160e9d80099b9f9", "080c687a113a7344"),
     },
-    "SkylakeX": {
+    "SkylakeX X86_V4": {
         "TS": ("2f7d24c4826a0bb8", "17ab2340b0bc7bd9"),
         "T45": ("a02b05b251cf54b0", "e393fb8c4a90c4c1"),
         "T90": ("fc8a1036285c86c1", "2cc51f67ef88cc7e"),
@@ -300,15 +300,26 @@ PAPER_FRAME_SHA256 = {
         "HEADON": ("2b61b1ac01fcc7c1", "548c345c454e8a7b"),
         "TWO": ("7f16a8f2d1998711", "cfc3814b0d2889a7"),
     },
+    # an AVX2-only AMD EPYC (2026-12-03): only COLLISION's frames differ from the Xeon's
+    "Haswell X86_V3": {
+        "TS": ("2d2c4a364fb0ad8c", "67bacbdea74bd4b4"),
+        "T45": ("9dced490cef0dc3d", "b271e02ea56be858"),
+        "T90": ("386c55a9b64334b2", "f1c83803a888de78"),
+        "RAISED": ("106cb81c0de0784f", "13a5e0535765db04"),
+        "INPLANE": ("7fe46a2824057f73", "88f1eb825110d347"),
+        "COLLISION": ("e6a66a5ac1d33c5c", "50976eb151bfccbd"),
+        "HEADON": ("2b61b1ac01fcc7c1", "548c345c454e8a7b"),
+        "TWO": ("b160e9d80099b9f9", "080c687a113a7344"),
+    },
 }
 
 
 def test_paper_scenarios_render_byte_identical():
-    kernel = numpy_blas_kernel()
+    kernel = numeric_kind()
     if kernel not in PAPER_FRAME_SHA256:
         pytest.skip(
-            f"frames recorded with OpenBLAS kernels {sorted(PAPER_FRAME_SHA256)}, numpy runs "
-            f"{kernel} here (OPENBLAS_CORETYPE=Haswell runs the first on an AVX2 machine)"
+            f"frames recorded on machine kinds {sorted(PAPER_FRAME_SHA256)} (OpenBLAS kernel,"
+            f" numpy SIMD), this one is {kernel}"
         )
     cam = Equirectangular(360, 220)
     for name, expected in PAPER_FRAME_SHA256[kernel].items():

@@ -223,29 +223,36 @@ def test_one_stray_message_is_no_reboot_but_a_real_reboot_still_is() -> None:
 
 
 def test_requests_to_the_autopilot_are_rate_limited_whatever_the_link_says() -> None:
-    """An autopilot that seems to reboot five times a second (each a new sequence with
-    the clock back, the old one silent) gets at most ``request_burst`` commands and then
-    one a second."""
+    """An autopilot that seems to reboot every 0.8 s (silent for 0.6 s, then a new
+    sequence with the clock back: what a real reboot looks like) gets at most
+    ``REQUEST_BURST`` commands and then one a second, not two per reboot."""
     ep = CompanionEndpoint(now_us=START)
     now = START
     commands = 0
     reboots = 0
-    for _ in range(100):  # 20 s
+    end = START + 20 * S
+    while now < end:
         ap = MavlinkCodec(1, 1)
         msgs = [
             d.MAVLink_heartbeat_message(
                 d.MAV_TYPE_QUADROTOR, d.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3
             )
         ] + [d.MAVLink_attitude_message(t, 0, 0, 0, 0, 0, 0) for t in (1000, 1020, 1040, 5000)]
-        for m in msgs:
-            now += 40_000
+        for k, m in enumerate(msgs):
+            now += 600_000 if k == 0 else 40_000
+            for t in range(now - 30_000, now, 10_000):  # the companion's timers meanwhile
+                ep.poll(t)
             reboots += sum(
                 isinstance(e, AutopilotRebooted) for e in ep.receive_data(ap.encode(m), now)
             )
             ep.poll(now)
-            commands += sum(m.get_type() == "COMMAND_LONG" for m in decode(ep.data_to_send()))
-    assert reboots >= 90  # each looked like a real reboot ...
-    assert commands <= REQUEST_BURST + 20 + 1  # ... but the budget held
+            for cmd in decode(ep.data_to_send()):
+                if cmd.get_type() == "COMMAND_LONG":  # ACCEPTED at once, as ArduPilot does
+                    commands += 1
+                    ack = d.MAVLink_command_ack_message(cmd.command, 0, 0, 0, 1, 191)
+                    ep.receive_data(ap.encode(ack), now + 1000)
+    assert reboots >= 20, (reboots, commands, ep.stats)  # each looked like a real reboot ...
+    assert commands <= REQUEST_BURST + 20 + 1  # ... but the budget held (2 per reboot wanted)
     assert ep.stats["requests rate-limited"] > 0
 
 
@@ -269,18 +276,20 @@ def test_the_guard_alone() -> None:
     h = SenderGuard()
     h.observe(100, 0)
     h.observe(101, 1)
-    assert [h.observe(s, 2 + s).verdict for s in (0, 1, 2)] == ["other", "other", "switched"]
-    assert h.observe(102, 10).verdict == "other"  # the old one back: not followed
+    # ... a burst of three right after the followed line's last message is not one ...
+    assert [h.observe(s, 2 + s).verdict for s in (0, 1, 2)] == ["other"] * 3
+    # ... the followed line silent for half a second is.
+    assert h.observe(3, 500_001).verdict == "switched"
+    assert h.observe(102, 500_010).verdict == "other"  # the old one back: not followed
     # A sender that does not number its messages (seq always 0: this project's mock and
     # companion before issue 24, in older flight logs) is still one sender, and its
     # reboot (the clock back) is still a restart.
     u = SenderGuard()
     assert {u.observe(0, t, frame=bytes([t])).verdict for t in range(10)} == {"current"}
-    assert [u.observe(0, 20 + t, anomalous=True, frame=b"r%d" % t).verdict for t in range(3)] == [
-        "other",
-        "other",
-        "switched",
+    restart = [
+        u.observe(0, 600_000 + t, anomalous=True, frame=b"r%d" % t).verdict for t in range(3)
     ]
+    assert restart == ["other", "other", "switched"]
 
 
 def test_token_bucket() -> None:

@@ -14,10 +14,11 @@ things keep a spoofed or confused peer from driving the companion (issue 24 §3)
   issue 24 — fits only when no step forward does) and says whether it is the line the
   endpoint follows (``current``), another one (``other``: not used), the followed
   line's last frame again, byte for byte (``duplicate``: a looped or doubled link; not
-  used), or a new line that has
-  taken over (``switched``: the followed line fell silent while the new one sent
-  ``confirm`` messages, which is what a reboot looks like — a rebooted autopilot numbers
-  from 0 again). Messages of another line that arrive *between* messages of the
+  used), or a new line that has taken over (``switched``: the followed line fell silent
+  — since the new line began, and for ``restart_silence_us`` at least — while the new
+  one sent ``confirm`` messages, which is what a reboot looks like: a rebooted autopilot
+  is silent for a second or more and numbers from 0 again; a burst from another sender
+  between two of the autopilot's 50-Hz messages is not). Messages of another line that arrive *between* messages of the
   followed one (``interleaves``) mean two senders at once: two of them within
   ``conflict_window_us`` are a **conflict**, which lasts until that window has passed
   without any. A single stray message is one interleave: dropped, counted, no conflict.
@@ -166,12 +167,14 @@ class SenderGuard:
         max_gap: int = 32,
         confirm: int = 3,
         line_window_us: int = 2_000_000,
+        restart_silence_us: int = 500_000,
         conflict_window_us: int = 10_000_000,
         max_lines: int = 4,
     ) -> None:
         self.max_gap = max_gap
         self.confirm = confirm
         self.line_window_us = line_window_us
+        self.restart_silence_us = restart_silence_us
         self.conflict_window_us = conflict_window_us
         self.max_lines = max_lines
         self.current: _Line | None = None
@@ -261,10 +264,12 @@ class SenderGuard:
             return Seen("current", cur.ident, best_gap)
         self._other_since_current = True
         self._update_conflict(now_us)
+        silent_us = now_us - cur.last_us
         if (
             not self.conflict
             and best.count >= self.confirm
-            and (best.first_n > cur.last_n or now_us - cur.last_us > self.line_window_us)
+            and silent_us >= self.restart_silence_us
+            and (best.first_n > cur.last_n or silent_us > self.line_window_us)
         ):
             # The followed line fell silent while this one kept counting: a restart.
             self._others.remove(best)

@@ -292,6 +292,27 @@ def test_the_guard_alone() -> None:
     assert restart == ["other", "other", "switched"]
 
 
+def test_a_spoofers_message_that_happens_to_fit_takes_nothing_over() -> None:
+    """Seen against real ArduCopter: the spoofer's first message (a heartbeat, no clock)
+    fell 15 numbers after the autopilot's last and joined its line; its next message
+    continued that exactly with its clock 40 s back: a "reboot", and the spoofer followed
+    from then on. Now the skip is provisional: no clock jump is believed after it, and the
+    autopilot's next number shows it was another sender's."""
+    g = SenderGuard()
+    for seq in (60, 61, 62):
+        assert g.observe(seq, seq * 20_000, boot_ms=46_000 + seq * 20).verdict == "current"
+    assert g.observe(77, 1_250_000).verdict == "current"  # fits: 14 lost, as far as it shows
+    jump = g.observe(78, 1_251_000, anomalous=True, boot_ms=5_020)
+    assert jump.verdict == "other"  # not the autopilot's reboot
+    assert g.observe(63, 1_260_000, boot_ms=46_660).verdict == "current"  # back on its own
+    assert g.current is not None and g.current.last_seq == 63
+    for k in range(4):  # the spoofer goes on, the autopilot too: a conflict, not a takeover
+        t = 1_270_000 + k * 20_000
+        assert g.observe(79 + k, t, boot_ms=5_040 + 20 * k).verdict == "other"
+        assert g.observe(64 + k, t + 10_000, boot_ms=46_680 + 20 * k).verdict == "current"
+    assert g.conflict and g.switches == 0
+
+
 def test_token_bucket() -> None:
     b = TokenBucket(3, 1000, 0)
     assert [b.take(0) for _ in range(4)] == [True, True, True, False]

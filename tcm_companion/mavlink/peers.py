@@ -11,7 +11,10 @@ things keep a spoofed or confused peer from driving the companion (issue 24 §3)
   ``max_gap``, allowing for lost messages; the smallest step wins, and a message whose
   boot time does not fit a line's clock does not join it; the same number again — a
   sender that does not number its messages, as this project's own codec did before
-  issue 24 — fits only when no step forward does) and says whether it is the line the
+  issue 24 — fits only when no step forward does; a message that continues the number
+  *before* the followed line's last step, when that step skipped numbers, shows that
+  step was another sender's that happened to fit, and no clock jump is believed right
+  after such a step) and says whether it is the line the
   endpoint follows (``current``), another one (``other``: not used), the followed
   line's last frame again, byte for byte (``duplicate``: a looped or doubled link; not
   used), or a new line that has taken over (``switched``: the followed line fell silent
@@ -133,6 +136,10 @@ class _Line:
     last_frame: bytes = b""
     boot_ms: int | None = None  # its sender's boot clock, as its last timed message said
     boot_at_us: int = 0  # when that message arrived
+    # The number before the last step when that step skipped numbers (lost messages, or
+    # another sender that happened to fit): a message continuing *it* shows that the
+    # step was another sender's. None after an exact step.
+    before_skip: int | None = None
 
     def clock_agrees(self, boot_ms: int | None, now_us: int) -> bool:
         """Whether a message stamped ``boot_ms`` fits this line's clock: not more than
@@ -142,7 +149,13 @@ class _Line:
         ahead_ms = self.boot_ms + (now_us - self.boot_at_us) // 1000
         return self.boot_ms - CLOCK_SLACK_MS <= boot_ms <= ahead_ms + CLOCK_SLACK_MS
 
-    def take(self, seq: int, n: int, now_us: int, boot_ms: int | None, frame: bytes) -> None:
+    def take(
+        self, seq: int, gap: int, n: int, now_us: int, boot_ms: int | None, frame: bytes
+    ) -> None:
+        if gap > 1:
+            self.before_skip = self.last_seq
+        elif gap == 1:
+            self.before_skip = None
         self.last_seq, self.last_n, self.last_us, self.last_frame = seq, n, now_us, frame
         self.count += 1
         if boot_ms is not None:
@@ -234,6 +247,14 @@ class SenderGuard:
         self._expire(now_us)
         if frame and frame == cur.last_frame:
             return Seen("duplicate", cur.ident, 0)
+        if cur.before_skip is not None and (seq - cur.before_skip) % SEQ_MOD == 1:
+            # The followed sender continues from before its last step: that step (which
+            # skipped numbers) was another sender's message. Back on its own numbers.
+            cur.take(seq, 1, self._n, now_us, boot_ms, frame)
+            self._interleaves.append(now_us)
+            self._other_since_current = False
+            self._update_conflict(now_us)
+            return Seen("current", cur.ident, 1)
         best: _Line | None = None
         best_gap, best_rank = 0, SEQ_MOD
         trust = not self.interleaved_recently(now_us)
@@ -242,7 +263,9 @@ class SenderGuard:
             if gap > self.max_gap:
                 continue
             if line is cur:
-                if anomalous and not (gap == 1 and trust):
+                # A clock jump only from the next number of a line whose last step was
+                # exact, with no other sender about lately.
+                if anomalous and not (gap == 1 and trust and cur.before_skip is None):
                     continue
             elif not line.clock_agrees(boot_ms, now_us):
                 continue
@@ -255,7 +278,7 @@ class SenderGuard:
             best, best_gap = self._new_line(seq, now_us, boot_ms, frame), 0
             self._others.append(best)
         else:
-            best.take(seq, self._n, now_us, boot_ms, frame)
+            best.take(seq, best_gap, self._n, now_us, boot_ms, frame)
         if best is cur:
             if self._other_since_current:
                 self._interleaves.append(now_us)

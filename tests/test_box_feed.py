@@ -121,6 +121,36 @@ BAD_BOX = {"x_min": 1, "y_min": 2, "x_max": 3, "y_max": 4}
         (msg().replace(b"30.5", b"Infinity"), "malformed", "Infinity is not a number"),
         (msg().replace(b"30.5", b"1e999"), "malformed", "x_max must be finite"),
         (b"[" * 100_00 + b"]" * 100_00, "malformed", ""),  # deep nesting: no RecursionError
+        # Numbers too big for any arithmetic (issue 24 §3: a 4000-digit capture time raised
+        # OverflowError in live_boxes.py, a traceback per datagram).
+        pytest.param(
+            msg(capture_mono_us=int("9" * 4000)),
+            "malformed",
+            "capture_mono_us must be",
+            id="4000-digit capture_mono_us",
+        ),
+        (msg(capture_mono_us=2**63), "malformed", "below 2^63"),
+        pytest.param(
+            msg(boxes=[{**BAD_BOX, "x_min": int("9" * 400)}]),
+            "malformed",
+            "x_min must be finite",
+            id="400-digit x_min",
+        ),
+        pytest.param(
+            msg(boxes=[{**BAD_BOX, "score": -int("9" * 400)}]),
+            "malformed",
+            "score must be finite",
+            id="400-digit score",
+        ),
+        pytest.param(
+            msg(camera=int("9" * 4000)), "unknown camera", "camera 999", id="4000-digit camera"
+        ),
+        pytest.param(
+            msg().replace(b"5000000", b"9" * 5000),
+            "malformed",
+            "Exceeds the limit",
+            id="5000-digit capture_mono_us",
+        ),
     ],
 )
 def test_a_malformed_datagram_is_refused_with_its_reason(data: bytes, kind: str, says: str) -> None:
@@ -550,6 +580,92 @@ def test_no_datagram_raises_anything_but_a_refusal(data: bytes) -> None:
     else:
         for b in m.boxes:
             assert all(math.isfinite(v) for v in (b.x_min, b.y_min, b.x_max, b.y_max, b.score))
+
+
+#: Values a hostile feeder sends: integers of up to 4200 digits (Python's json reads up
+#: to 4300), every float (NaN and infinities as JSON's non-standard constants), strings,
+#: and nested containers.
+_huge = st.builds(
+    lambda digits, sign: sign * int("9" * digits), st.integers(300, 4200), st.sampled_from([1, -1])
+)
+_hostile_scalar = st.one_of(
+    _huge, st.integers(), st.floats(), st.none(), st.booleans(), st.text(max_size=5)
+)
+_hostile = st.recursive(
+    _hostile_scalar,
+    lambda inner: (
+        st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=3), inner, max_size=3)
+    ),
+    max_leaves=8,
+)
+
+
+def _spoil(doc: dict[str, Any], where: list[str], value: Any) -> dict[str, Any]:
+    """``doc`` with the field at path ``where`` replaced by ``value`` (None: removed);
+    unchanged when an earlier change took the path away."""
+    out = json.loads(json.dumps(doc))
+    parent: Any = out
+    for key in where[:-1]:
+        try:
+            parent = parent[key] if isinstance(parent, dict) else parent[int(key)]
+        except (KeyError, IndexError, TypeError, ValueError):
+            return out
+    if not isinstance(parent, dict):
+        return out
+    if value is None:
+        parent.pop(where[-1], None)
+    else:
+        parent[where[-1]] = value
+    return out
+
+
+_GOOD = json.loads(msg())
+#: A good message with one or two of its fields hostile.
+_hostile_message = st.builds(
+    lambda first, second: _spoil(_spoil(_GOOD, *first), *second),
+    *[
+        st.tuples(
+            st.sampled_from(
+                [["v"], ["camera"], ["capture_mono_us"], ["boxes"]]
+                + [
+                    ["boxes", "0", k]
+                    for k in ("x_min", "y_min", "x_max", "y_max", "score", "label")
+                ]
+            ).map(list),
+            st.one_of(st.none(), _huge, _hostile_scalar, _hostile),
+        )
+    ]
+    * 2,
+)
+
+_hostile_datagram = st.one_of(
+    _hostile_message.map(lambda x: json.dumps(x).encode()),
+    _hostile_message.map(lambda x: json.dumps(x).encode()[:-3]),  # cut short
+    st.binary(max_size=64).map(lambda b: b"\xff" + b),  # not UTF-8
+    st.integers(1, 3000).map(lambda n: b"[" * n + b"]" * n),  # deep nesting
+    st.integers(0, 100).map(lambda n: b" " * (MAX_DATAGRAM_BYTES - 50 + n) + b"{}"),  # huge
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(_hostile_datagram, min_size=1, max_size=6))
+def test_hostile_datagrams_are_refused_and_counted_never_raised(datagrams: list[bytes]) -> None:
+    """Huge numbers, NaN and infinities, negatives, wrong types, deep nesting, huge and
+    non-UTF-8 datagrams: each is used or refused with a counted kind; nothing raises
+    (before issue 24 a 4000-digit number raised OverflowError), and a good datagram
+    after them is still used."""
+    pipeline = dataclasses.replace(PipelineConfig(), detection=DetectionConfig(backend="boxes"))
+    comp = Companion(
+        [CAMERA], pipeline, CompanionEndpoint(now_us=0), 0, DaemonConfig(box_feed=FEED), ["front"]
+    )
+    kinds = [comp.on_box_datagram(data, 1_000_000 + 1000 * i) for i, data in enumerate(datagrams)]
+    assert set(kinds) <= {"accepted", "malformed", "unknown camera", "late", "future"}, kinds
+    counts = comp.stats.box_feed
+    assert counts["datagrams"] == len(datagrams)
+    for kind in set(kinds):
+        assert counts[kind] == kinds.count(kind)
+    good = encode_box_message(0, 1_900_000, [Box(10.0, 20.0, 30.0, 40.0, 0.9, "")])
+    assert comp.on_box_datagram(good, 2_000_000) == "accepted"
 
 
 @settings(max_examples=200, deadline=None)

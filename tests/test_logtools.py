@@ -392,6 +392,50 @@ def test_plots_without_data_are_skipped_not_drawn(flight: Flight, tmp_path: Path
     assert not (tmp_path / "plots" / "disparity.png").exists()
 
 
+def test_plot_log_draws_only_the_followed_autopilots_attitude(
+    flight: Flight, tmp_path: Path
+) -> None:
+    """Issue 24 §3: `plot LOG` drew ATTITUDE from any system as the vehicle's (a second
+    system's -172° pitch). Now only what the companion used: the first autopilot
+    heartbeat's system, one sender under its id."""
+    from tcm_companion.logtools.plot import build_figures, load_log_data
+
+    hb = tcm_dialect.MAVLink_heartbeat_message(
+        tcm_dialect.MAV_TYPE_QUADROTOR, tcm_dialect.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3
+    )
+    other = tcm_dialect.MAVLink(None, srcSystem=2, srcComponent=1)  # another vehicle
+    spoof = tcm_dialect.MAVLink(None, srcSystem=1, srcComponent=1)  # a second sender as 1/1
+    spoof.seq = 90
+    parsed = tcm_dialect.MAVLink(None)
+    kinds = [
+        (m.get_type(), m.get_srcSystem())
+        for _, f in flight.sim.tlog_records
+        for m in parsed.parse_buffer(f) or []
+    ]
+    first_hb = kinds.index(("HEARTBEAT", 1))  # the companion follows 1/1 from here
+    real = sum(1 for kind, _ in kinds[first_hb:] if kind == "ATTITUDE")
+    w = _writer(tmp_path / "log")
+    w.start({"camera0": json.dumps(flight.sim.camera.to_dict())})
+    for k, (t, frame) in enumerate(flight.sim.tlog_records):
+        t -= MONO_SHIFT_US
+        w.log_mavlink("in", t, frame)
+        if k > first_hb and k % 4 == 0:
+            for mav, pitch, boot in ((other, -3.0, 777_000), (spoof, 1.4, 999_000 + k)):
+                for msg in ([hb] if k % 40 == 0 else []) + [
+                    tcm_dialect.MAVLink_attitude_message(boot, 0.0, pitch, 0.0, 0, 0, 0)
+                ]:
+                    w.log_mavlink("in", t + 100, bytes(msg.pack(mav)))
+                    mav.seq = (mav.seq + 1) % 256
+    w.stop()
+    data = load_log_data(tmp_path / "log")
+    pitch = np.degrees([a[2] for a in data.attitude])
+    assert np.all(np.abs(pitch) < 30.0), pitch.min()  # neither -172° nor the spoofer's 80°
+    assert len(pitch) == real, (len(pitch), real)
+    assert data.autopilot == "1/1"
+    fig = build_figures(data)[0]["attitude"]
+    assert "Autopilot 1/1 attitude" in fig.axes[0].get_title()
+
+
 # --------------------------------------------------------------------------------------
 # Foxglove layout
 # --------------------------------------------------------------------------------------

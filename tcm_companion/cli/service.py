@@ -416,6 +416,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if not ran.startswith(("stopped", "interrupted")):
         ran = f"stopped after {ran}"
     feed = f"; box feed {summary.box_feed}" if summary.box_feed else ""
+    feed += f"; link {summary.link}" if summary.link else ""
     print(
         f"{ran}: captured {summary.captured}, processed {summary.processed}, dropped"
         f" {summary.dropped}, failed {summary.failed}, rejected {summary.rejected}; {latency};"
@@ -477,6 +478,7 @@ def write_summary_json(
         "frames_waited_for_attitude": summary.stats.frames_waited,
         "objects_sent": summary.stats.objects_sent,
         "box_feed": getattr(summary, "box_feed", {}),
+        "link": getattr(summary, "link", {}),
         "stages_ms": {
             k: {
                 "p50": float(np.percentile(v, 50)) if v else None,

@@ -1,8 +1,11 @@
 """Analysis plots (PNG) of a flight log or of a scenario's replay.
 
 :func:`plot_log` reads a flight log (one ``.mcap`` or a directory of rotated ones):
-``/tcm/result`` per frame, ``/tcm/health`` once a second and the autopilot's ATTITUDE
-from ``/mavlink/in``. :func:`plot_scenario` replays a ``tcm-scenario/1`` directory (or a
+``/tcm/result`` per frame, ``/tcm/health`` once a second and the autopilot's attitude
+from ``/mavlink/in`` — the attitude the companion used: the logged bytes go through a
+fresh MAVLink endpoint, the daemon's own rule (the first autopilot heartbeat picks the
+autopilot; another system's ATTITUDE, or a second sender under the autopilot's id, is
+not its attitude; issue 24 drew a second system's −172° pitch as the vehicle's). :func:`plot_scenario` replays a ``tcm-scenario/1`` directory (or a
 simulated scenario in memory) through the pipeline and plots the same documents, with
 the scenario's ``truth.csv`` overlaid where it has one. Both write:
 
@@ -14,7 +17,7 @@ the scenario's ``truth.csv`` overlaid where it has one. Both write:
                    the true time to contact (range over closing speed) per truth object
 ``egomotion.png``  translation-direction uncertainty σ and inlier ratio over time
 ``latency.png``    histogram of capture → MAVLink latency (replay: processing time)
-``attitude.png``   roll, pitch, yaw of the autopilot's attitude
+``attitude.png``   roll, pitch, yaw of the attitude the companion used
 ``health.png``     frame rate, latency and dropped frames from ``/tcm/health`` (logs)
 =================  ===============================================================
 
@@ -97,6 +100,7 @@ class PlotData:
     results: list[dict[str, Any]] = field(default_factory=list)  # /tcm/result documents
     health: list[tuple[int, dict[str, Any]]] = field(default_factory=list)  # (t_us, doc)
     attitude: list[tuple[int, float, float, float]] = field(default_factory=list)  # rad
+    autopilot: str = ""  # "1/1": whose attitude (logs: the autopilot the companion followed)
     truth: list[TruthSeries] = field(default_factory=list)
     latency_is_processing_time: bool = False  # replay: no live latency
     t0_us: int | None = None
@@ -110,7 +114,7 @@ class PlotData:
 def load_log_data(path: str | Path) -> PlotData:
     """Read what the plots need from a flight log (file or rotated directory)."""
     from ..flightlog import reader
-    from .convert import check_log_path, parse_mavlink
+    from .convert import check_log_path
 
     path = Path(path)
     check_log_path(path)
@@ -136,11 +140,36 @@ def load_log_data(path: str | Path) -> PlotData:
                 log.warning("%s: %s at %d us has no t_capture_us (skipped)", path, rec.topic, t_us)
         else:
             data.health.append((t_us, doc))
-    for t_us, msg in parse_mavlink(iter(chunks)):
-        if msg.get_type() == "ATTITUDE":
-            data.attitude.append((t_us, float(msg.roll), float(msg.pitch), float(msg.yaw)))
+    data.attitude, data.autopilot = followed_attitude(chunks)
     data.results.sort(key=lambda d: (d.get("t_capture_us", 0), d.get("camera_id", 0)))
     return data
+
+
+def followed_attitude(
+    chunks: Sequence[tuple[int, bytes]],
+) -> tuple[list[tuple[int, float, float, float]], str]:
+    """The attitude samples ``(receive µs, roll, pitch, yaw rad)`` the companion used, of
+    the logged received bytes ``chunks``, and whose they were (``"1/1"``, "" when no
+    autopilot was found): the bytes through a fresh
+    :class:`~tcm_companion.mavlink.endpoint.CompanionEndpoint` at their receive times,
+    as process replay does."""
+    from ..core.frames import euler_zyx_from_rot
+    from ..core.telemetry import AttitudeSample
+    from ..mavlink.endpoint import CompanionEndpoint, TelemetryReceived
+
+    out: list[tuple[int, float, float, float]] = []
+    if not chunks:
+        return out, ""
+    ep = CompanionEndpoint(now_us=chunks[0][0])
+    for t_us, data in chunks:
+        ep.poll(t_us)  # its timers: an autopilot lost and found again starts anew
+        for ev in ep.receive_data(data, t_us):
+            if isinstance(ev, TelemetryReceived) and isinstance(ev.sample, AttitudeSample):
+                roll, pitch, yaw = euler_zyx_from_rot(ev.sample.R_ned_from_body)
+                out.append((t_us, roll, pitch, yaw))
+        ep.data_to_send()
+    ap = ep.autopilot
+    return out, f"{ap.system_id}/{ap.component_id}" if ap is not None else ""
 
 
 def load_scenario_data(scenario: Any, config: Any | None = None) -> PlotData:
@@ -568,7 +597,7 @@ def _plot_latency(fig: Figure, data: PlotData, t0: int) -> str:
 
 def _plot_attitude(fig: Figure, data: PlotData, t0: int) -> str:
     if not data.attitude:
-        return "no ATTITUDE messages from the autopilot"
+        return "no attitude from the autopilot"
     a = np.array(data.attitude, dtype=np.float64)
     t = (a[:, 0] - t0) / 1e6
     axes = fig.subplots(3, 1, sharex=True)
@@ -577,7 +606,8 @@ def _plot_attitude(fig: Figure, data: PlotData, t0: int) -> str:
         ax.set_ylabel(name)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel(f"{_time_label(data)}, receive time")
-    axes[0].set_title(_title(data, f"Autopilot attitude ({len(a)} ATTITUDE messages)"))
+    who = f"Autopilot {data.autopilot} attitude" if data.autopilot else "Autopilot attitude"
+    axes[0].set_title(_title(data, f"{who} ({len(a)} samples)"))
     return ""
 
 

@@ -7,13 +7,21 @@ that may start inside it, and garbage, truncated frames and floods are counted a
 dropped. Every fault lands in :attr:`MavlinkCodec.stats`.
 
 MAVLink 2 signing (optional): outgoing frames are signed; incoming unsigned or badly
-signed frames are rejected and counted. The signing timestamp (10 µs units since
-2015-01-01) follows the caller's clock and never goes backwards; the edge persists
+signed frames are rejected and counted (``signature rejected``, and one counter per
+reason: ``signature rejected: unsigned``, ``wrong key``, ``replayed timestamp``,
+``timestamp too old``). The signing timestamp (10 µs units since 2015-01-01) follows the
+caller's clock and never goes backwards; the edge persists
 :attr:`MavlinkCodec.signing_timestamp` across restarts.
+
+pymavlink's generated dialect logs every signature check at INFO ("new stream", "sig
+mismatch": two lines per wrongly signed frame, over a thousand in 14 s from one bad
+peer). Its logger is set to WARNING here; the counters above replace those lines, and
+the endpoint logs them at most once a second.
 """
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +34,11 @@ _SIGNED = 0x01
 _SIGNATURE_LEN = 13
 # 2015-01-01T00:00:00Z in µs since the Unix epoch: the signing timestamp's origin.
 SIGNING_EPOCH_US = 1_420_070_400_000_000
+# A new signing stream is refused when its timestamp is this far behind ours (pymavlink's
+# rule: one minute, in 10 µs units).
+_NEW_STREAM_SLACK = 6_000_000
+
+logging.getLogger(dialect.__name__).setLevel(logging.WARNING)
 
 
 @dataclass(frozen=True)
@@ -106,13 +119,18 @@ class MavlinkCodec:
 
     # -- sending -----------------------------------------------------------------------
     def encode(self, msg: Any, now_us: int | None = None) -> bytes:
-        """Pack one message (next sequence number; signed if signing is on)."""
+        """Pack one message (the next sequence number, 0..255 then 0 again; signed if
+        signing is on)."""
         if self.signing is not None and now_us is not None:
             # The spec's timestamp: 10 µs ticks since 2015; strictly increasing.
             clock = (now_us - SIGNING_EPOCH_US) // 10
             if clock > self.mav.signing.timestamp:
                 self.mav.signing.timestamp = clock
         frame = bytes(msg.pack(self.mav))
+        # pymavlink advances the sequence number in MAVLink.send(), which we do not use:
+        # every frame went out as seq 0 (a ground station reads that as 255 of 256 lost,
+        # and a peer cannot tell one sender from two).
+        self.mav.seq = (self.mav.seq + 1) % 256
         self.stats["sent"] += 1
         return frame
 
@@ -181,9 +199,20 @@ class MavlinkCodec:
                 self.stats["bad CRC"] += 1
                 return None, False
             self.stats["unsigned rejected"] += 1
+            self._signature_rejected("unsigned")
             return None, True
         stream = (frame[-13], frame[5], frame[6]) if signed else None
         seen = self.mav.signing.stream_timestamps.get(stream) if stream else None
+        reason = ""
+        if self.signing is not None and signed:
+            # Why pymavlink would refuse it (it only logs the reason): judged first.
+            stamp = int.from_bytes(frame[-12:-6], "little")
+            if seen is not None and stamp <= seen:
+                reason = "replayed timestamp"
+            elif seen is None and stamp + _NEW_STREAM_SLACK < self.mav.signing.timestamp:
+                reason = "timestamp too old"
+            else:
+                reason = "wrong key"
         try:
             msg = self.mav.decode(frame)
         except dialect.MAVError as exc:
@@ -197,6 +226,7 @@ class MavlinkCodec:
                     else:
                         self.mav.signing.stream_timestamps[stream] = seen
                 self.stats["bad signature"] += 1
+                self._signature_rejected(reason or "wrong key")
                 return None, True
             self.stats["bad CRC" if "CRC" in text else "undecodable"] += 1
             return None, False
@@ -211,3 +241,7 @@ class MavlinkCodec:
             return None, False
         self.stats["received"] += 1
         return msg, True
+
+    def _signature_rejected(self, reason: str) -> None:
+        self.stats["signature rejected"] += 1
+        self.stats[f"signature rejected: {reason}"] += 1

@@ -5,9 +5,15 @@ What it does, as a well-behaved companion component (mavlink.io microservices):
 
 - HEARTBEAT at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER / MAV_AUTOPILOT_INVALID, component id
   191 by default, system id learned from the autopilot; the autopilot is *lost* after
-  ~5 missed heartbeats and *rebooted* when its boot clock goes backwards.
+  ~5 missed heartbeats and *rebooted* when its boot clock goes backwards — as one sender:
+  messages under the autopilot's id that do not continue its MAVLink sequence are not
+  used, a clock jump is believed from a message that continues the sequence exactly or
+  from a new sequence that took over while the old one fell silent, and two interleaved
+  senders are a *conflict* (:class:`~.peers.SenderGuard`, :class:`AutopilotConflict`).
 - Requests the telemetry it needs with MAV_CMD_SET_MESSAGE_INTERVAL, one command at a
-  time, retried, with a fallback and rate checks (:mod:`.streams`).
+  time, retried, with a fallback and rate checks (:mod:`.streams`); at most
+  :data:`REQUEST_BURST` such commands at once and one per :data:`REQUEST_INTERVAL_US`
+  after that, whatever happens on the link.
 - Telemetry messages become samples by the one rule replay uses too
   (:func:`tcm_companion.mavlink.samples.parse_telemetry`); unusable ones are
   :class:`TelemetryRejected`.
@@ -15,8 +21,10 @@ What it does, as a well-behaved companion component (mavlink.io microservices):
   filtered (:mod:`.timesync`, which also says when an offset is fresh); the autopilot's
   own requests answered.
 - The parameter protocol for our tunables (:mod:`.params`), COMMAND_LONG/COMMAND_INT to
-  us answered with COMMAND_ACK (UNSUPPORTED when we do not support it), optional
-  MAVLink 2 signing (:mod:`.codec`).
+  us answered with COMMAND_ACK (UNSUPPORTED when we do not support it), each kind of
+  request served at a bounded rate per peer and in all (:data:`REQUEST_LIMITS`), optional
+  MAVLink 2 signing (:mod:`.codec`; rejected frames counted, logged at most once a
+  second).
 - STATUSTEXT through a bounded queue, each condition rate-limited (:mod:`.statustext`);
   a collision alarm is one condition per track.
 - Outputs: TCM_OBJECT_STATUS for every object of every frame, TCM_PIPELINE_HEALTH at
@@ -32,6 +40,7 @@ argument (``now_us``, the companion's clock, the same clock as the frame times);
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections import Counter, deque
 from collections.abc import Callable, Mapping
@@ -46,6 +55,7 @@ from . import outputs
 from . import tcm_dialect as d
 from .codec import MavlinkCodec, SigningConfig
 from .events import (
+    AutopilotConflict,
     AutopilotFound,
     AutopilotLost,
     AutopilotRebooted,
@@ -59,12 +69,14 @@ from .events import (
     TrackingImageStatus,
 )
 from .params import PARAMS, ParamTable
+from .peers import Limit, PeerLimits, SenderGuard, TokenBucket
 from .samples import TELEMETRY_TYPES, Rejected, parse_telemetry
 from .statustext import CollisionConditions, StatustextQueue
 from .streams import StreamRequests
 from .timesync import TimesyncFilter
 
 __all__ = [
+    "AutopilotConflict",
     "AutopilotFound",
     "AutopilotLost",
     "AutopilotRebooted",
@@ -80,9 +92,41 @@ __all__ = [
     "TrackingImageStatus",
 ]
 
+log = logging.getLogger(__name__)
+
 MAV_COMP_ID_ALL = 0
 _FTP_NAK = 129  # MAVLink FTP opcode
 _FTP_ERR_UNKNOWN_COMMAND = 7
+
+#: How often each kind of request addressed to us is served, per peer (system,
+#: component) and for all peers together; beyond, it is dropped unanswered and counted
+#: (``"<kind> rate-limited"``). Generous for a ground station (a parameter file of ~20
+#: values at once; a list every few seconds), bounded for a flood: a PARAM_SET rebuilds
+#: the pipeline and is saved to disk, a PARAM_REQUEST_LIST costs ~15 PARAM_VALUE.
+REQUEST_LIMITS: dict[str, Limit] = {
+    "command": Limit(10, 200_000, 20, 100_000),
+    "parameter list": Limit(2, 2_000_000, 4, 1_000_000),
+    "parameter read": Limit(40, 50_000, 80, 25_000),
+    "parameter set": Limit(20, 200_000, 40, 100_000),
+    "timesync request": Limit(10, 100_000, 20, 50_000),
+    "ftp": Limit(10, 200_000, 20, 100_000),
+}
+#: Commands to the autopilot (stream requests and re-requests): at most this many at
+#: once, then one per :data:`REQUEST_INTERVAL_US`, whatever the link does (a spoofer's
+#: fake reboots once drew 60-93 a second). Not a setting: a bound.
+REQUEST_BURST = 8
+REQUEST_INTERVAL_US = 1_000_000
+#: MAV_CMD_SET_MESSAGE_INTERVAL for TCM_PIPELINE_HEALTH: intervals outside are refused
+#: (1 µs made the daemon's loop spin, sending health messages as fast as it could).
+HEALTH_INTERVAL_MIN_US = 50_000
+HEALTH_INTERVAL_MAX_US = 60_000_000
+#: A rejected frame (bad or missing signature) sets TCM_HEALTH_SIGNATURE_REJECTED this long.
+SIGNATURE_FLAG_US = 10_000_000
+#: Signature rejections are logged at most once per this long (with the count per reason).
+SIGNATURE_LOG_US = 1_000_000
+#: Messages kept from a sequence line that is not (yet) followed: if it takes over (a
+#: reboot), they are handled then, in order.
+_HELD_PER_LINE = 4
 
 
 @dataclass(frozen=True)
@@ -114,6 +158,7 @@ class _Autopilot:
     last_heartbeat_us: int
     lost: bool = False
     last_boot_ms: int = -1
+    last_boot_at_us: int = 0  # when last_boot_ms last advanced
 
 
 class CompanionEndpoint:
@@ -172,6 +217,20 @@ class CompanionEndpoint:
             now_us,
         )
         self._collisions = CollisionConditions(config.collision_clear_us)
+        # Who speaks as the autopilot (one sender?), how often peers are served, how
+        # often we command the autopilot.
+        self.guard = SenderGuard()
+        self._held: dict[int, deque[tuple[Any, int]]] = {}
+        self._conflict = False
+        self.limits = PeerLimits(REQUEST_LIMITS, self.stats)
+        self._request_buckets: dict[tuple[int, int], TokenBucket] = {}
+        self._request_deferred = False
+        self._now_us = now_us  # the latest time seen
+        # Signature rejections: when the last one was seen, and what was last logged.
+        self._signature_seen_us: int | None = None
+        self._signature_logged_us: int | None = None
+        self._signature_logged: Counter[str] = Counter()
+        self._other_autopilots: set[tuple[int, int]] = set()
         self._health = HealthReport()
         self._last_objects: tuple[ObjectResult, ...] = ()
         self._last_frame_us: int | None = None
@@ -193,32 +252,200 @@ class CompanionEndpoint:
     # -- receiving ---------------------------------------------------------------------------
     def receive_data(self, data: bytes, now_us: int) -> list[Event]:
         """Bytes from the link; returns what they meant. Never raises."""
+        self._now_us = max(self._now_us, now_us)
         for msg in self.codec.feed(data):
             try:
                 self._handle(msg, now_us)
             except Exception as exc:  # a hostile but well-framed message: count, go on
                 self.stats[f"handler error {type(exc).__name__}"] += 1
+        self._report_signatures(now_us)
         return self._take_events()
+
+    def _report_signatures(self, now_us: int) -> None:
+        """Frames the codec rejected for their signature: the health flag, and a log
+        line (the count per reason since the last one) at most once per
+        :data:`SIGNATURE_LOG_US` — never a line per frame."""
+        stats = self.codec.stats
+        total = stats["signature rejected"]
+        if total == self._signature_logged["signature rejected"]:
+            return
+        self._signature_seen_us = now_us
+        last = self._signature_logged_us
+        if last is not None and now_us - last < SIGNATURE_LOG_US:
+            return
+        reasons = {
+            k: stats[k] - self._signature_logged[k]
+            for k in stats
+            if k.startswith("signature rejected:") and stats[k] > self._signature_logged[k]
+        }
+        n = total - self._signature_logged["signature rejected"]
+        log.warning(
+            "MAVLink signing: %d frame(s) rejected (%s); %d so far",
+            n,
+            ", ".join(f"{v} {k.split(': ', 1)[1]}" for k, v in sorted(reasons.items())),
+            total,
+        )
+        self.statustext(
+            d.MAV_SEVERITY_WARNING,
+            "TCM: frames with a bad or no signature rejected",
+            now_us,
+            key="signature rejected",
+        )
+        self._signature_logged_us = now_us
+        self._signature_logged = Counter({k: v for k, v in stats.items() if "signature" in k})
 
     def _take_events(self) -> list[Event]:
         events, self._events = self._events, []
         return events
 
     def _handle(self, msg: Any, now_us: int) -> None:
+        ap = self.autopilot
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if ap is None or src != (ap.system_id, ap.component_id):
+            self._dispatch(msg, now_us, from_autopilot=False)
+            return
+        # The autopilot's id: is it the sender we follow? (SenderGuard)
+        seen = self.guard.observe(
+            msg.get_seq(),
+            now_us,
+            self._contradicts_clock(msg, now_us),
+            self._boot_ms_of(msg),
+            bytes(msg.get_msgbuf()),
+        )
+        if seen.verdict == "duplicate":
+            self.stats["autopilot id: duplicate frame"] += 1
+        elif seen.verdict == "other":
+            # Another sender, or the autopilot restarting: kept a little, in case this
+            # sequence takes over (then handled in order), else dropped.
+            self.stats["autopilot id: off-sequence message"] += 1
+            held = self._held.setdefault(seen.line, deque(maxlen=_HELD_PER_LINE))
+            held.append((msg, now_us))
+            live = self.guard.live_lines()
+            for line in [k for k in self._held if k not in live]:
+                del self._held[line]
+        elif seen.verdict == "switched":
+            # The sequence we followed fell silent while a new one counted on: a restart
+            # (a reboot numbers from 0). Its messages are the autopilot's now; a clock
+            # jump among them is its reboot.
+            self.stats["autopilot sequence restarts"] += 1
+            for held_msg, held_us in self._held.pop(seen.line, ()):
+                self._dispatch(held_msg, held_us, from_autopilot=True)
+            self._dispatch(msg, now_us, from_autopilot=True)
+        else:
+            # A clock jump reaches here only in a message that continues the sequence
+            # exactly, with no other sender between the autopilot's messages lately
+            # (SenderGuard.observe): then it is the autopilot's reboot.
+            self._dispatch(msg, now_us, from_autopilot=True)
+        self._check_conflict(now_us)
+
+    def _boot_ms_of(self, msg: Any) -> int | None:
+        """The sender's boot time (ms) a message states: telemetry's ``time_boot_ms``, a
+        TIMESYNC reply's ``tc1``; None for the rest."""
+        kind = msg.get_type()
+        if kind in TELEMETRY_TYPES:
+            return int(msg.time_boot_ms)
+        if kind == "TIMESYNC" and msg.tc1 > 0 and msg.ts1 in self._timesync_sent:
+            return int(msg.tc1) // 1_000_000
+        return None
+
+    def _contradicts_clock(self, msg: Any, now_us: int) -> bool:
+        """Whether a message of the autopilot's id says its clock jumped: telemetry more
+        than 1 s behind the last, or a TIMESYNC reply that would restart the filter."""
+        ap = self.autopilot
+        assert ap is not None
+        kind = msg.get_type()
+        if kind in TELEMETRY_TYPES:
+            boot_ms = int(msg.time_boot_ms)
+            if ap.last_boot_ms < 0:
+                return False
+            # More than 1 s back (a reboot, or another sender), or ahead of where its
+            # clock can be by now (another sender).
+            ahead_ms = ap.last_boot_ms + (now_us - ap.last_boot_at_us) // 1000
+            return not ap.last_boot_ms - 1000 <= boot_ms <= ahead_ms + 1000
+        if kind == "TIMESYNC" and msg.tc1 != 0 and msg.ts1 in self._timesync_sent:
+            return self.timesync.would_restart(msg.ts1 // 1000, msg.tc1, now_us)
+        return False
+
+    def _check_conflict(self, now_us: int) -> None:
+        """Report the guard's conflict when it starts or ends."""
+        if self.guard.conflict == self._conflict or self.autopilot is None:
+            return
+        self._conflict = self.guard.conflict
+        ap = self.autopilot
+        self._events.append(AutopilotConflict(ap.system_id, ap.component_id, self._conflict))
+        who = f"autopilot {ap.system_id}/{ap.component_id}"
+        if self._conflict:
+            self.stats["autopilot conflicts"] += 1
+            log.warning("two senders use the id of %s (MAVLink sequences interleave)", who)
+            self.statustext(
+                d.MAV_SEVERITY_WARNING,
+                f"TCM: two senders as {who}, objects unknown",
+                now_us,
+                key="autopilot conflict",
+            )
+        else:
+            log.info("%s: one sender again", who)
+            self.statustext(
+                d.MAV_SEVERITY_INFO,
+                f"TCM: {who} one sender again",
+                now_us,
+                key="autopilot conflict over",
+            )
+
+    @property
+    def conflict(self) -> bool:
+        """Two senders use the followed autopilot's id now (:class:`AutopilotConflict`)."""
+        return self._conflict
+
+    def link_health_flags(self, now_us: int) -> int:
+        """The health flags the link itself raises: TCM_HEALTH_AUTOPILOT_CONFLICT while
+        two senders use the autopilot's id, TCM_HEALTH_SIGNATURE_REJECTED while a frame
+        was rejected for its signature within :data:`SIGNATURE_FLAG_US`."""
+        flags = d.TCM_HEALTH_AUTOPILOT_CONFLICT if self._conflict else 0
+        seen = self._signature_seen_us
+        if seen is not None and now_us - seen < SIGNATURE_FLAG_US:
+            flags |= d.TCM_HEALTH_SIGNATURE_REJECTED
+        return flags
+
+    def link_counts(self) -> dict[str, int]:
+        """What peers did to the link that the companion refused or bounded: frames
+        rejected for their signature, conflicts and off-sequence messages under the
+        autopilot's id, requests and commands rate-limited (zeros left out)."""
+        out = {
+            k: v
+            for k, v in self.codec.stats.items()
+            if (k.startswith("signature rejected") or k == "unsigned rejected") and v
+        }
+        for k, v in self.stats.items():
+            if v and (
+                k.startswith("autopilot id:")
+                or k.endswith("rate-limited")
+                or k
+                in (
+                    "autopilot conflicts",
+                    "autopilot sequence restarts",
+                    "another autopilot",
+                    "timesync reply from another component",
+                )
+            ):
+                out[k] = v
+        return out
+
+    def _dispatch(self, msg: Any, now_us: int, *, from_autopilot: bool) -> None:
+        """One message, once the guard let it through (``from_autopilot``: the sender we
+        follow, whose clock jump is believed)."""
         kind = msg.get_type()
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if kind == "HEARTBEAT":
             self._on_heartbeat(msg, src, now_us)
             return
-        ap = self.autopilot
-        from_autopilot = ap is not None and src == (ap.system_id, ap.component_id)
         if kind in TELEMETRY_TYPES:
             if from_autopilot:
                 self._on_telemetry(msg, now_us)
             else:
                 self.stats["telemetry from another system"] += 1
         elif kind == "TIMESYNC":
-            self._on_timesync(msg, now_us)
+            self._on_timesync(msg, src, now_us, from_autopilot)
         elif kind == "COMMAND_ACK":
             if (
                 from_autopilot
@@ -227,13 +454,19 @@ class CompanionEndpoint:
             ):
                 self.streams.on_ack(msg.result, now_us)
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
-            if self._addressed_to_us(msg.target_system, msg.target_component, broadcast=False):
+            if self._addressed_to_us(
+                msg.target_system, msg.target_component, broadcast=False
+            ) and self.limits.allow("command", src, now_us):
                 self._on_command(msg, src, now_us)
         elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
-            if self._addressed_to_us(msg.target_system, msg.target_component, broadcast=True):
+            if self._addressed_to_us(
+                msg.target_system, msg.target_component, broadcast=True
+            ) and self.limits.allow(_PARAM_KIND[kind], src, now_us):
                 self._on_param(msg, kind, now_us)
         elif kind == "FILE_TRANSFER_PROTOCOL":
-            if self._addressed_to_us(msg.target_system, msg.target_component, broadcast=False):
+            if self._addressed_to_us(
+                msg.target_system, msg.target_component, broadcast=False
+            ) and self.limits.allow("ftp", src, now_us):
                 self._on_ftp(msg, src, now_us)
         elif kind in ("GPS_GLOBAL_ORIGIN", "HOME_POSITION"):
             if from_autopilot and kind == "GPS_GLOBAL_ORIGIN":
@@ -284,10 +517,27 @@ class CompanionEndpoint:
         if ap is None and is_autopilot:
             self.autopilot = _Autopilot(src[0], src[1], now_us)
             self.codec.src_system = src[0]  # we belong to the autopilot's system
+            self.guard.reset()
+            # Its sequence is the one we follow.
+            self.guard.observe(msg.get_seq(), now_us, frame=bytes(msg.get_msgbuf()))
             self.streams.restart(now_us)
             self._events.append(AutopilotFound(src[0], src[1], msg.autopilot, msg.type))
             self.statustext(d.MAV_SEVERITY_INFO, "TCM companion online", now_us)
-        elif not is_autopilot:
+        elif is_autopilot:
+            # A second autopilot on the link (another vehicle, or someone posing as one
+            # under another id): we keep following the first; said once per id.
+            assert ap is not None
+            self.stats["another autopilot"] += 1
+            if src not in self._other_autopilots and len(self._other_autopilots) < 16:
+                self._other_autopilots.add(src)
+                self.statustext(
+                    d.MAV_SEVERITY_WARNING,
+                    f"TCM: another autopilot {src[0]}/{src[1]} on link, following"
+                    f" {ap.system_id}/{ap.component_id}",
+                    now_us,
+                    key="another autopilot",
+                )
+        else:
             self.stats["heartbeat of another component"] += 1
 
     def _on_telemetry(self, msg: Any, now_us: int) -> None:
@@ -296,10 +546,13 @@ class CompanionEndpoint:
         ap = self.autopilot
         if ap.last_boot_ms >= 0 and boot_ms < ap.last_boot_ms - 1000:
             # The autopilot's boot clock went back: it rebooted and forgot our requests.
+            # (Its sender guard let this through: the message continues the sequence
+            # exactly with no other sender about, or its new sequence took over.)
             self._on_reboot(now_us)
-            ap.last_boot_ms = boot_ms
+            ap.last_boot_ms, ap.last_boot_at_us = boot_ms, now_us
         else:
-            ap.last_boot_ms = max(ap.last_boot_ms, boot_ms)
+            if boot_ms > ap.last_boot_ms:
+                ap.last_boot_ms, ap.last_boot_at_us = boot_ms, now_us
         self.streams.received(msg.get_msgId())
         sample = parse_telemetry(msg, now_us)
         if isinstance(sample, Rejected):
@@ -325,13 +578,21 @@ class CompanionEndpoint:
         self.streams.restart(now_us)
 
     # -- TIMESYNC -------------------------------------------------------------------------------
-    def _on_timesync(self, msg: Any, now_us: int) -> None:
+    def _on_timesync(
+        self, msg: Any, src: tuple[int, int], now_us: int, from_autopilot: bool
+    ) -> None:
         if msg.tc1 == 0:
             # A request (ArduPilot sends one every 10 s): answer with our clock.
-            self._send(d.MAVLink_timesync_message(now_us * 1000, msg.ts1), now_us)
+            if self.limits.allow("timesync request", src, now_us):
+                self._send(d.MAVLink_timesync_message(now_us * 1000, msg.ts1), now_us)
             return
         if msg.ts1 not in self._timesync_sent:
             self.stats["timesync reply not ours"] += 1
+            return
+        if not from_autopilot:
+            # ArduPilot forwards our request to its other links, where a ground station
+            # may answer with its own clock: only the autopilot's answer is its time.
+            self.stats["timesync reply from another component"] += 1
             return
         self._timesync_sent.remove(msg.ts1)
         before = self.timesync.resets
@@ -387,7 +648,7 @@ class CompanionEndpoint:
             and int(params[0]) == d.MAVLINK_MSG_ID_TCM_PIPELINE_HEALTH
         ):
             interval = params[1]
-            if interval > 0:
+            if HEALTH_INTERVAL_MIN_US <= interval <= HEALTH_INTERVAL_MAX_US:
                 self.config = dataclasses.replace(self.config, health_interval_us=int(interval))
                 result = d.MAV_RESULT_ACCEPTED
             else:
@@ -535,6 +796,7 @@ class CompanionEndpoint:
     def poll(self, now_us: int) -> list[Event]:
         """Run whatever is due at ``now_us``; returns events (e.g. the autopilot lost)."""
         cfg = self.config
+        self._now_us = max(self._now_us, now_us)
         if now_us >= self._next_heartbeat:
             self._send(
                 d.MAVLink_heartbeat_message(
@@ -556,11 +818,14 @@ class CompanionEndpoint:
         ):
             ap.lost = True
             self._events.append(AutopilotLost(now_us - ap.last_heartbeat_us))
+        if ap is not None and ap.lost:
+            self.guard.reset()  # whatever speaks as it next starts anew
+            self._held.clear()
+        self.guard.poll(now_us)
+        self._check_conflict(now_us)
         if self.autopilot_connected:
             assert ap is not None
-            request = self.streams.poll(now_us, (ap.system_id, ap.component_id))
-            if request is not None:
-                self._send(request, now_us)
+            self._service_requests((ap.system_id, ap.component_id), now_us)
         self._service_timesync(now_us)
         for text in self.statustexts.poll(now_us):
             self._send(text, now_us)
@@ -589,13 +854,36 @@ class CompanionEndpoint:
             self._next_obstacle = now_us + cfg.obstacle_interval_us
         return self._take_events()
 
+    def _request_bucket(self, target: tuple[int, int]) -> TokenBucket:
+        bucket = self._request_buckets.get(target)
+        if bucket is None:
+            bucket = TokenBucket(REQUEST_BURST, REQUEST_INTERVAL_US, self._now_us)
+            self._request_buckets = {target: bucket}  # one autopilot at a time
+        return bucket
+
+    def _service_requests(self, target: tuple[int, int], now_us: int) -> None:
+        """The stream requests due, within the command budget of ``target``."""
+        if now_us < self.streams.next_us:
+            return
+        bucket = self._request_bucket(target)
+        if bucket.ready_us(now_us) > now_us:
+            if not self._request_deferred:
+                self._request_deferred = True
+                self.stats["requests rate-limited"] += 1
+            return
+        request = self.streams.poll(now_us, target)
+        if request is not None:
+            bucket.take(now_us)
+            self._request_deferred = False
+            self._send(request, now_us)
+
     def send_health_now(self, now_us: int) -> None:
         """Queue a TCM_PIPELINE_HEALTH at once (as MAV_CMD_REQUEST_MESSAGE does)."""
         self._send(self._health_message(now_us), now_us)
 
     def _health_message(self, now_us: int) -> Any:
         h = self._health
-        flags = h.health_flags
+        flags = h.health_flags | self.link_health_flags(now_us)
         if not self.timesync.fresh(now_us):
             flags |= d.TCM_HEALTH_TIMESYNC_LOST
         offset = self.timesync.offset_us
@@ -619,15 +907,29 @@ class CompanionEndpoint:
         """When :meth:`poll` next has something to do."""
         deadlines = [self._next_heartbeat, self._next_health]
         if self.autopilot_connected:
-            deadlines += [self.streams.next_us, self._next_timesync]
             ap = self.autopilot
             assert ap is not None
+            requests = self.streams.next_us
+            bucket = self._request_buckets.get((ap.system_id, ap.component_id))
+            if bucket is not None and requests <= self._now_us:
+                requests = max(requests, bucket.ready_us(self._now_us))
+            deadlines += [requests, self._next_timesync]
             deadlines.append(ap.last_heartbeat_us + self.config.autopilot_timeout_us + 1)
+        ends = self.guard.conflict_ends_us()
+        if ends is not None:
+            deadlines.append(ends)
         if self.statustexts.pending:
             deadlines.append(self.statustexts.next_us)
         if self.params.values["TCM_OUT_OBST"]:
             deadlines.append(self._next_obstacle)
         return min(deadlines)
+
+
+_PARAM_KIND = {
+    "PARAM_REQUEST_LIST": "parameter list",
+    "PARAM_REQUEST_READ": "parameter read",
+    "PARAM_SET": "parameter set",
+}
 
 
 def _param_name(raw: Any) -> str:

@@ -30,6 +30,16 @@ class AutopilotRebooted:
 
 
 @dataclass(frozen=True)
+class AutopilotConflict:
+    """Two senders use the followed autopilot's (system, component) id (``active``), or
+    the conflict ended (not ``active``): :class:`~.peers.SenderGuard`."""
+
+    system_id: int
+    component_id: int
+    active: bool
+
+
+@dataclass(frozen=True)
 class TelemetryReceived:
     sample: TelemetrySample
 
@@ -85,6 +95,7 @@ Event = (
     AutopilotFound
     | AutopilotLost
     | AutopilotRebooted
+    | AutopilotConflict
     | TelemetryReceived
     | TelemetryRejected
     | ParamChanged

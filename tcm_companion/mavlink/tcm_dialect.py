@@ -421,8 +421,12 @@ TCM_HEALTH_LOG_FAULT = 16
 enums["TCM_HEALTH_FLAGS"][16] = EnumEntry("TCM_HEALTH_LOG_FAULT", """The flight log cannot be written (disk full or missing).""")
 TCM_HEALTH_OVERLOADED = 32
 enums["TCM_HEALTH_FLAGS"][32] = EnumEntry("TCM_HEALTH_OVERLOADED", """Frames are being dropped: processing is slower than the camera.""")
-TCM_HEALTH_FLAGS_ENUM_END = 33
-enums["TCM_HEALTH_FLAGS"][33] = EnumEntry("TCM_HEALTH_FLAGS_ENUM_END", """""")
+TCM_HEALTH_AUTOPILOT_CONFLICT = 64
+enums["TCM_HEALTH_FLAGS"][64] = EnumEntry("TCM_HEALTH_AUTOPILOT_CONFLICT", """Two senders use the autopilot's system and component id (their MAVLink sequence numbers interleave): a spoofed or misrouted link. Objects are unknown until it clears.""")
+TCM_HEALTH_SIGNATURE_REJECTED = 128
+enums["TCM_HEALTH_FLAGS"][128] = EnumEntry("TCM_HEALTH_SIGNATURE_REJECTED", """Frames with a missing or bad MAVLink 2 signature arrived within the last 10 s (rejected).""")
+TCM_HEALTH_FLAGS_ENUM_END = 129
+enums["TCM_HEALTH_FLAGS"][129] = EnumEntry("TCM_HEALTH_FLAGS_ENUM_END", """""")
 
 # TCM_LOG_STATE
 enums["TCM_LOG_STATE"] = Enum()

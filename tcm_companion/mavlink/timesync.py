@@ -79,6 +79,15 @@ class TimesyncFilter:
         """Synchronised, and the newest reply is younger than ``fresh_us`` at ``now_us``."""
         return self.synced and self.age_us(now_us) < self.fresh_us
 
+    def would_restart(self, ts1_sent_us: int, tc1_remote_ns: int, now_us: int) -> bool:
+        """Whether :meth:`add_reply` of this reply would restart the filter (its offset
+        jumps), without taking it."""
+        rtt = now_us - ts1_sent_us
+        if rtt < 0 or rtt > self.max_rtt_us or tc1_remote_ns <= 0 or not self._samples:
+            return False
+        offset = (ts1_sent_us + now_us) / 2.0 - tc1_remote_ns / 1000.0
+        return abs(offset - self._offset_us) > max(self.jump_us, 4 * rtt)
+
     def add_reply(self, ts1_sent_us: int, tc1_remote_ns: int, now_us: int) -> TimesyncSample | None:
         """Take one reply to our request sent at ``ts1_sent_us``; returns the sample if used."""
         rtt = now_us - ts1_sent_us

@@ -46,6 +46,9 @@ MAX_DATAGRAM_BYTES = 32_768
 MAX_BOXES = 256
 #: Labels longer than this are refused (``malformed``).
 MAX_LABEL_CHARS = 64
+#: ``capture_mono_us`` must be below this (a CLOCK_MONOTONIC µs count fits an int64);
+#: a larger one is refused (``malformed``) before any arithmetic on it.
+MAX_CAPTURE_MONO_US = 2**63
 #: The name of the feed's input in the daemon's health (STATUSTEXT ``TCM: box feed stale``).
 INPUT_NAME = "box feed"
 
@@ -89,10 +92,13 @@ def parse_feed_url(url: str) -> tuple[str, int] | None:
 
 def _number(value: object, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise BoxFeedError("malformed", f"{where} must be a number, got {value!r}")
-    x = float(value)
+        raise BoxFeedError("malformed", f"{where} must be a number, got {_short(value)}")
+    try:
+        x = float(value)
+    except OverflowError:  # an integer of hundreds of digits
+        x = math.inf
     if not math.isfinite(x):
-        raise BoxFeedError("malformed", f"{where} must be finite, got {value!r}")
+        raise BoxFeedError("malformed", f"{where} must be finite, got {_short(value)}")
     return x
 
 
@@ -158,12 +164,15 @@ def parse_box_datagram(
         camera_id = list(names).index(cam)
     else:
         if not 0 <= cam < len(cameras):
-            raise BoxFeedError("unknown camera", f"camera {cam} is not in 0..{len(cameras) - 1}")
+            raise BoxFeedError(
+                "unknown camera", f"camera {_short(cam)} is not in 0..{len(cameras) - 1}"
+            )
         camera_id = cam
     t = doc.get("capture_mono_us")
-    if isinstance(t, bool) or not isinstance(t, int) or t < 0:
+    if isinstance(t, bool) or not isinstance(t, int) or not 0 <= t < MAX_CAPTURE_MONO_US:
         raise BoxFeedError(
-            "malformed", f"capture_mono_us must be a non-negative integer (µs), got {t!r:.40}"
+            "malformed",
+            f"capture_mono_us must be a non-negative integer (µs) below 2^63, got {_short(t)}",
         )
     items = doc.get("boxes")
     if not isinstance(items, list):
@@ -174,6 +183,12 @@ def parse_box_datagram(
     parsed = [_box(item, i, model) for i, item in enumerate(items)]
     boxes = tuple(b for b in parsed if b is not None)
     return BoxMessage(camera_id, t, boxes, len(parsed) - len(boxes))
+
+
+def _short(value: object) -> str:
+    """``repr(value)`` cut to 40 characters (a hostile datagram's values go into the log)."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:37]}..."
 
 
 def _no_constant(name: str) -> float:

@@ -88,6 +88,7 @@ from ..core.pipeline import FrameResult, ObjectResult, Pipeline, PipelineConfig
 from ..core.telemetry import AttitudeSample, ClockSync, PositionSample, TelemetryBuffer
 from ..mavlink import tcm_dialect as d
 from ..mavlink.endpoint import (
+    AutopilotConflict,
     AutopilotFound,
     AutopilotLost,
     AutopilotRebooted,
@@ -441,6 +442,8 @@ class Companion:
         self._overloaded = False  # the condition announced by the last health check
         self._next_health_mono_us = now_mono_us + config.health_interval_us
         self.last_override = ""  # why the last processed frame's objects were made unknown
+        # Two senders use the autopilot's id ("" when not): the objects' reason meanwhile.
+        self.conflict = ""
         # The flight log's state (set_log_state), reported in the health message.
         self.log_state = d.TCM_LOG_STATE_OFF
         self._log_behind = 0  # items the log has lost so far (frames and messages)
@@ -520,12 +523,34 @@ class Companion:
                 )
             elif isinstance(ev, AutopilotRebooted):
                 self.stats.faults["autopilot reboot"] += 1
+            elif isinstance(ev, AutopilotConflict):
+                self._on_conflict(ev, now_mono_us)
             elif isinstance(ev, TrackingImageStatus):
                 if self.config.box_tracking:
                     self.boxes.on_tracking_image(ev, now_mono_us)
                 else:
                     self.stats.box_feed["tracking ignored"] += 1
         return out
+
+    def _on_conflict(self, ev: AutopilotConflict, now_mono_us: int) -> None:
+        """Two senders use the autopilot's id (the endpoint announced it): one fault;
+        every object ``unknown`` while it lasts (the endpoint uses one sender's telemetry
+        only, but which one is real is not known). When it ends the pipelines start
+        over, so that nothing is decided from attitude of the conflict's time."""
+        if ev.active:
+            self.stats.faults["autopilot conflict"] += 1
+            self.conflict = f"two senders as autopilot {ev.system_id}/{ev.component_id}"
+            for cam in self.cameras:
+                if cam.last_objects:  # what the autopilot last heard is unknown now
+                    stale = FrameResult(-1, now_mono_us, cam.last_objects, False, None, {})
+                    self.endpoint.send_frame(
+                        mark_unknown(stale, self.conflict), now_mono_us, cam.camera_id
+                    )
+                    cam.last_objects = ()
+        else:
+            self.conflict = ""
+            for cam in self.cameras:
+                self._rebuild(cam)
 
     def set_log_state(self, state: int, frames_lost: int, messages_lost: int) -> None:
         """The flight log's ``TCM_LOG_STATE`` and how many frames and other messages it
@@ -767,6 +792,11 @@ class Companion:
         """The MAVLink endpoint's counters (malformed input, suppressed texts, ...)."""
         return dict(self.endpoint.stats)
 
+    def link_counts(self) -> dict[str, int]:
+        """What peers did that was refused or bounded (:meth:`CompanionEndpoint.link_counts`:
+        signatures rejected, conflicts under the autopilot's id, rate-limited requests)."""
+        return self.endpoint.link_counts()
+
     def threshold(self) -> float:
         return float(self.pipeline_config.classifier.tcm_threshold)
 
@@ -779,6 +809,8 @@ class Companion:
         return self.cameras[camera_id].last_objects
 
     def _blocking_input(self, now_mono_us: int) -> str:
+        if self.conflict:
+            return self.conflict
         att = self.inputs.monitors["attitude"].status(now_mono_us)
         if not att.healthy:
             return att.problem
@@ -889,7 +921,7 @@ class Companion:
             flags |= d.TCM_HEALTH_OVERLOADED
         if self.log_state == d.TCM_LOG_STATE_FAULT:
             flags |= d.TCM_HEALTH_LOG_FAULT
-        return flags
+        return flags | self.endpoint.link_health_flags(now_mono_us)
 
     def frame_rate_hz(self, now_mono_us: int) -> float:
         recent = [t for t in self._frame_times_mono_us if now_mono_us - t <= 2_000_000]
@@ -934,6 +966,8 @@ class Companion:
         overload = self.overload_problem(now_mono_us)
         if overload:
             problems.append(overload)
+        if self.conflict:
+            problems.append(self.conflict)
         head = f"objects {len(objs)} ({st}) | "
         if ttcs:
             head += f"TTC {min(ttcs):.1f}s | "

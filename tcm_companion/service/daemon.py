@@ -138,6 +138,7 @@ class Daemon:
         self.send_errors = 0
         self._wake = asyncio.Event()
         self._handoff_failures = 0
+        self._box_error_logged_us: int | None = None
         self._tasks: list[asyncio.Task[Any]] = []
 
     # -- frames from the camera threads -------------------------------------------------
@@ -157,11 +158,17 @@ class Daemon:
 
     def _on_box_datagram(self, data: bytes) -> None:  # on the loop's thread
         assert self.plumbing is not None
+        now = self.clock.now_us()
         try:
-            self.plumbing.box_datagram(data, self.clock.now_us())
+            self.plumbing.box_datagram(data, now)
         except Exception:  # a bug must not close the socket (uvloop would) or stop the loop
-            self.plumbing.companion.stats.box_feed["handler error"] += 1
-            log.exception("box feed: a datagram raised")
+            counts = self.plumbing.companion.stats.box_feed
+            counts["handler error"] += 1
+            # A bug's traceback once per 10 s, not once per (hostile) datagram.
+            last = self._box_error_logged_us
+            if last is None or now - last >= 10_000_000:
+                self._box_error_logged_us = now
+                log.exception("box feed: a datagram raised (%d so far)", counts["handler error"])
         self._wake.set()  # a frame waiting for these boxes may go now
 
     # -- tasks -------------------------------------------------------------------------------

@@ -148,6 +148,9 @@ class DaemonSummary:
     stage_ms: dict[str, list[float]] = field(default_factory=dict)
     # The live box feed's counters (Companion.box_feed_counts; empty without a feed).
     box_feed: dict[str, int] = field(default_factory=dict)
+    # What peers on the MAVLink link did that was refused or bounded (Companion.link_counts:
+    # "signature rejected", "autopilot conflicts", "... rate-limited"; empty: nothing).
+    link: dict[str, int] = field(default_factory=dict)
 
     @property
     def frames_balance(self) -> bool:
@@ -391,11 +394,18 @@ class Plumbing:
                     "inputs": hc.problems,
                     "status": hc.status_line,
                     "log": self._log_doc,
+                    "link": self.companion.link_counts(),
+                    # Whose attitude the companion follows (plot and replay use the same).
+                    "autopilot": self._autopilot_id(),
                 },
             )
         self.notifier.status(hc.status_line)
         if self.on_status is not None:
             self.on_status(hc.status_line)
+
+    def _autopilot_id(self) -> list[int] | None:
+        ap = self.companion.endpoint.autopilot
+        return None if ap is None else [ap.system_id, ap.component_id]
 
     def summary(
         self, duration_s: float, camera_stats: dict[str, CameraStats], lost_in_handoff: int = 0
@@ -421,4 +431,5 @@ class Plumbing:
             faults=dict(comp.stats.faults),
             stage_ms={k: v.tolist() for k, v in self.stage_ms.items()},
             box_feed=comp.box_feed_counts() if comp.box_feed else {},
+            link=comp.link_counts(),
         )

@@ -176,6 +176,8 @@ class SitlReport:
             f" withheld {s.watchdog_withheld}",
             f"  results: sha256 {self.results_sha256[:16]} of {self.results_frames} frames",
         ]
+        if s.link:
+            out.append(f"  link: {s.link}")
         if self.stale_excused or self.loop_lag_max_ms >= 500.0:
             out.append(
                 f"  event loop stalled up to {self.loop_lag_max_ms:.0f} ms (machine load);"

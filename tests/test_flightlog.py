@@ -756,7 +756,9 @@ def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.Mo
     w.stop()
     s = w.stats
     frames_account(s, calls)
-    assert s.frames_dropped_error > 0 and s.write_errors >= 2
+    # ENOSPC: frames lost to the full disk count as dropped (disk), not (error), since
+    # issue 24 §2 (this asserted frames_dropped_error > 0 before)
+    assert s.frames_dropped_disk > 0 and s.frames_dropped_error == 0 and s.write_errors >= 2
     assert len(s.files) >= 2
     assert [sev for sev, _ in events] == ["error", "info"]
     got = [r.publish_time_ns // 1000 for r in read_log(tmp_path, {"/camera0/image"})]
@@ -869,3 +871,61 @@ def test_a_live_writer_is_woken_by_frames_not_by_every_item(tmp_path: Path) -> N
         w.stop()
     s = w.stats
     assert (s.messages_logged, s.frames_logged, s.messages_dropped_queue) == (42, 1, 0)
+
+
+def test_a_full_disk_is_counted_as_dropped_disk_and_leaves_no_empty_parts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 24 §2: ENOSPC during a write. What the writer had counted as logged but not
+    yet written out (the open chunk) is lost with the failed write: it is counted as
+    dropped (disk), so that ``frames_logged`` is what the file holds; while the disk is
+    full, frames are dropped (disk), not (error); the retries leave no empty parts behind
+    (each used to leave one, ``-001``, ``-002`` ...); once there is room again the log
+    goes on in a new part."""
+    broken = {"on": False}
+    real_open = FlightLogWriter._open_stream
+    monkeypatch.setattr(
+        FlightLogWriter,
+        "_open_stream",
+        lambda self, path: FailingFile(real_open(self, path), broken),
+    )
+    free = {"bytes": 10**12}
+    w, events = writer_with_events(
+        tmp_path, retry_interval_s=0.05, free_bytes=lambda p: free["bytes"]
+    )
+    img = noise_image(6)
+    calls = 0
+
+    def log_some(n: int) -> None:
+        nonlocal calls
+        for _ in range(n):
+            calls += 1
+            t = T0 + 40_000 * calls
+            assert w.log_frame(0, t, img)
+            assert w.log_json("/tcm/result", t, {"t": t})
+        assert wait_for(lambda: w.stats.queue_depth == 0)
+
+    log_some(3)
+    assert wait_for(lambda: w.stats.bytes_written > 0)
+    time.sleep(0.1)  # flushed: those three are in the file
+    broken["on"] = True
+    log_some(4)  # into the open chunk, then the flush fails
+    assert wait_for(lambda: w.state == "fault")
+    log_some(3)  # while the disk is full
+    time.sleep(0.4)  # several failed retries
+    assert w.state == "fault"
+    broken["on"] = False
+    assert wait_for(lambda: w.state == "recording")
+    log_some(2)
+    w.stop()
+    s = w.stats
+    frames_account(s, calls)
+    got = [r.publish_time_ns // 1000 for r in read_log(tmp_path, {"/camera0/image"})]
+    assert s.frames_logged == len(got) == 5, (s, got)  # 3 before, 2 after
+    assert s.frames_dropped_disk == 7 and s.frames_dropped_error == 0
+    assert s.messages_logged == 5 and s.messages_dropped_disk == 7
+    assert s.write_errors >= 2  # the failed write and at least one failed retry
+    on_disk = sorted(p.name for p in tmp_path.glob("*.mcap"))
+    assert on_disk == sorted(p.name for p in s.files) and len(on_disk) == 2, on_disk
+    assert all(read_metadata(p) for p in tmp_path.glob("*.mcap"))  # no empty part
+    assert [sev for sev, _ in events] == ["error", "info"]

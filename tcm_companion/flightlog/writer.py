@@ -455,9 +455,15 @@ class FlightLogWriter:
         self._file_opened_at = 0.0
         self._dirty = False
         self._fault = False
+        self._fault_disk_full = False  # the fault is a full disk (ENOSPC, EDQUOT)
         self._fault_reported = False
         self._encode_error_reported = False
         self._disk_low = False
+        # Counted as logged but not yet pushed to the OS (the open chunk): a failed write
+        # loses them, and they are counted again as dropped (see _enter_fault).
+        self._pending = [0, 0]  # frames, other messages
+        self._written_pos = 0  # the file position last pushed to the OS
+        self._part_flushed = False  # a message of the open part has reached the OS
         self._next_free_check = 0.0
         self._next_retry = 0.0
         # deterministic mode: the records' time of the next flush and of the part's start
@@ -704,7 +710,7 @@ class FlightLogWriter:
             self._count(kind, "dropped_disk")
             return
         if self._mcap is None:
-            self._count(kind, "dropped_error")
+            self._count(kind, "dropped_disk" if self._fault_disk_full else "dropped_error")
             return
         try:
             topic, channel_kind, t_us, payload = self._encode(item)
@@ -722,13 +728,29 @@ class FlightLogWriter:
             return
         try:
             self._write(topic, channel_kind, log_ns, publish_ns, payload)
+            with self._lock:
+                self._counts.count(kind, "logged")
+            self._pending[kind != _FRAME] += 1
+            assert self._fh is not None
+            pos = self._fh.tell()
+            if pos != self._written_pos:  # mcap ended a chunk: push it to the OS now, so
+                self._fh.flush()  # that what is counted as logged is what the file holds
+                self._written(pos)
         except Exception as e:
-            self._count(kind, "dropped_error")
+            if self._pending[kind != _FRAME] == 0:  # not counted yet (the write failed)
+                self._count(kind, _lost_outcome(e))
             self._enter_fault(e, time.monotonic())
             return
-        self._count(kind, "logged")
-        if self._fh is not None and self._fh.tell() >= self._rotate_bytes:
+        if pos >= self._rotate_bytes:
             self._rotate(time.monotonic())
+
+    def _written(self, pos: int) -> None:
+        """Everything up to file position ``pos`` reached the OS: the pending items are
+        in the file."""
+        self._written_pos = pos
+        if self._pending != [0, 0]:
+            self._part_flushed = True
+        self._pending = [0, 0]
 
     def _encode(self, item: _Item) -> tuple[str, str, int, bytes]:
         """(topic, channel kind, t_us, payload) of a queued item."""
@@ -861,6 +883,7 @@ class FlightLogWriter:
             _flush_writer(self._mcap, self._fh)
             self._dirty = False
             self._bytes_current = self._fh.tell()
+            self._written(self._bytes_current)
         except Exception as e:
             self._enter_fault(e, now)
 
@@ -874,6 +897,9 @@ class FlightLogWriter:
             self._enter_fault(e, now)
 
     def _retry(self, now: float) -> None:
+        if self._fault_disk_full and not self._room_for_a_part():
+            self._next_retry = now + self._retry_interval_s
+            return
         try:
             self._open_file()
         except Exception as e:
@@ -883,19 +909,28 @@ class FlightLogWriter:
             self._next_retry = now + self._retry_interval_s
             return
         self._fault = False
+        self._fault_disk_full = False
         self._fault_reported = False
         self._event("info", f"log: recording again ({self._counts.files[-1].name})")
+
+    def _room_for_a_part(self) -> bool:
+        """After a full disk: free space for a part's start and a chunk (unknown: try)."""
+        try:
+            free = int(self._free_bytes(self.directory))
+        except Exception:
+            return True
+        return free >= self.config.chunk_size_bytes + 65_536
 
     def _open_file(self) -> None:
         """Open the next part: header, metadata record, flushed; raises on failure."""
         self.directory.mkdir(parents=True, exist_ok=True)
         for _ in range(100_000):
             path = self.directory / part_name(self._session, self._counter)
-            self._counter += 1
             try:
                 fh = self._open_stream(path)
                 break
             except FileExistsError:
+                self._counter += 1
                 continue
         else:  # pragma: no cover
             raise FileExistsError(errno.EEXIST, "no free log file name", str(self.directory))
@@ -911,10 +946,16 @@ class FlightLogWriter:
         except BaseException:
             with contextlib.suppress(Exception):
                 fh.close()
+            with contextlib.suppress(OSError):
+                path.unlink()  # ours (created here): no empty or partial part is left
             raise
+        self._counter += 1
         self._fh, self._mcap = fh, writer
         self._channels, self._schemas, self._sequence = {}, {}, {}
         self._dirty = False
+        self._pending = [0, 0]
+        self._written_pos = fh.tell()
+        self._part_flushed = False
         self._file_opened_at = time.monotonic()
         with self._lock:
             self._counts.files.append(path)
@@ -939,21 +980,45 @@ class FlightLogWriter:
         except Exception as e:
             self._enter_fault(e, time.monotonic())
             return
+        self._pending = [0, 0]
         self._fh = self._mcap = None
         with self._lock:
             self._bytes_closed += size
             self._bytes_current = 0
 
     def _enter_fault(self, exc: BaseException, now: float) -> None:
+        # What was counted as logged but had not reached the OS is lost with the part's
+        # tail: counted again, as dropped (disk on a full disk, else error).
+        lost = _lost_outcome(exc)
+        frames, messages = self._pending
+        self._pending = [0, 0]
+        fh = self._fh
+        # A part that never got a message out holds only its start: remove it (a full
+        # disk would otherwise leave one such part per retry).
+        useless = fh is not None and not self._part_flushed
         with self._lock:
-            self._counts.write_errors += 1
-            self._bytes_closed += self._bytes_current
+            c = self._counts
+            c.write_errors += 1
+            c.frames_logged -= frames
+            c.messages_logged -= messages
+            setattr(c, f"frames_{lost}", getattr(c, f"frames_{lost}") + frames)
+            setattr(c, f"messages_{lost}", getattr(c, f"messages_{lost}") + messages)
+            if useless and c.files:
+                self._counter -= 1
+                gone = c.files.pop()
+            else:
+                self._bytes_closed += self._bytes_current
+                gone = None
             self._bytes_current = 0
-        if self._fh is not None:
+        if fh is not None:
             with contextlib.suppress(Exception):
-                self._fh.close()
+                fh.close()
+        if gone is not None:
+            with contextlib.suppress(OSError):
+                gone.unlink()
         self._fh = self._mcap = None
         self._fault = True
+        self._fault_disk_full = lost == "dropped_disk"
         self._next_retry = now + self._retry_interval_s
         log.warning("flight log write failed: %s", exc)
         if not self._fault_reported:
@@ -968,6 +1033,14 @@ class FlightLogWriter:
             self._on_event(severity, text)
         except Exception:
             log.exception("flight log on_event callback failed")
+
+
+def _lost_outcome(exc: BaseException) -> Outcome:
+    """How an item lost to the write error ``exc`` is counted: a full disk (ENOSPC, or
+    a quota: EDQUOT) is ``dropped_disk``, like the free-space floor; anything else
+    ``dropped_error``."""
+    full = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    return "dropped_disk" if full else "dropped_error"
 
 
 _KIND_NAMES = {_FRAME: "frame", _ANNOT: "annotations", _MAV: "MAVLink", _JSON: "JSON"}

@@ -37,7 +37,6 @@ from tcm_companion.flightlog.reader import (
     decode_image,
     decode_json,
     log_files,
-    part_name,
     read_log,
     read_metadata,
 )
@@ -415,14 +414,25 @@ def test_the_reader_says_how_much_of_a_truncated_or_damaged_file_it_read(
 
 
 def test_a_damaged_part_of_several_is_named(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
-    write_everything(tmp_path / "one", "jpeg", sim_frames[:3])
-    (src,) = log_files(tmp_path / "one")
-    data = src.read_bytes()
+    # Three parts of one flight, as the writer's rotation leaves them (a part per frame:
+    # rotated by the records' time). Three copies of one part were used before: since
+    # flights have ids (issue 24), those are one part three times, not three parts.
     log = tmp_path / "log"
-    log.mkdir()
-    parts = [log / part_name("20260101-120000", k) for k in range(3)]
-    for p in parts:
-        p.write_bytes(data)
+    w = FlightLogWriter(
+        LoggingConfig(image_format="jpeg", rotate_interval_s=0.04),
+        log,
+        wall_minus_mono_ns=WALL,
+        deterministic=True,
+        session="20260101-120000",
+    )
+    w.start({"camera0": {"w": 360}})
+    for i, img in enumerate(sim_frames[:3]):
+        assert w.log_frame(0, T0 + 40_000 * i, img)
+        assert w.log_json("/tcm/result", T0 + 40_000 * i + 2_000, {"i": i})
+    w.stop()
+    parts = w.stats.files
+    assert parts == log_files(log) and len(parts) == 3
+    data = parts[1].read_bytes()
     parts[1].write_bytes(data[: len(data) - 200])  # the middle part lost its end
     report = LogReport()
     n = sum(1 for _ in read_log(log, report=report))

@@ -7,6 +7,7 @@ import sys
 from typing import Any
 
 from .common import (
+    FLIGHT_HELP,
     FORCE_HELP,
     TOOLS_HINT,
     TolerantFrames,
@@ -24,7 +25,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..logtools.convert import log_to_scenario
 
     with atomic_path(args.scenario, force=args.force, is_dir=True) as tmp:
-        summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id)
+        summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id, flight=args.flight)
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"{args.log} -> {args.scenario}: {summary.frames} frames")
@@ -58,7 +59,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         raise
 
     if is_log(args.source):
-        paths = plot_log(args.source, args.out)
+        paths = plot_log(args.source, args.out, flight=args.flight)
     else:
         from ..io.scenario import load_scenario
 
@@ -95,6 +96,7 @@ def add_parsers(sub: Any) -> None:
         metavar="N",
         help="which camera's frames to export (default 0)",
     )
+    p.add_argument("--flight", metavar="ID", default=None, help=FLIGHT_HELP)
     p.set_defaults(func=cmd_export)
 
     p = add_command(
@@ -132,4 +134,5 @@ def add_parsers(sub: Any) -> None:
     p.add_argument(
         "--out", default="out/plots", metavar="DIR", help="folder for the PNGs (default out/plots)"
     )
+    p.add_argument("--flight", metavar="ID", default=None, help="flight log: " + FLIGHT_HELP)
     p.set_defaults(func=cmd_plot)

@@ -7,6 +7,7 @@ import sys
 from typing import Any
 
 from .common import (
+    FLIGHT_HELP,
     FORCE_HELP,
     METHODS,
     TolerantFrames,
@@ -38,7 +39,7 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     report = LogReport()
     with atomic_text(args.results, force=args.force) as fh:
         writer = ResultsWriter(fh)
-        for frame in replay_log(args.scenario, args.camera_id, report):
+        for frame in replay_log(args.scenario, args.camera_id, report, args.flight):
             writer.write(frame.result)
             frames += 1
             d = compare(frame)
@@ -49,10 +50,12 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
                 diffs.extend(d)
         rows = writer.rows
     problems = report.problems()
-    for line in problems:
+    for line in report.notes + problems:
         print(f"warning: {line}", file=sys.stderr)
     incomplete = ""
-    if problems:
+    if problems and not report.damaged:  # the flight's own: a part missing, ...
+        incomplete = f"; INCOMPLETE: {len(problems)} problem(s) with its parts (see the warnings)"
+    elif problems:
         if len(report.parts) > 1:
             which = ", ".join(
                 f"part {k + 1} ({p.path.name}) {p.kind}"
@@ -261,6 +264,7 @@ def add_parsers(sub: Any) -> None:
         metavar="N",
         help="flight log: which camera (default 0)",
     )
+    p.add_argument("--flight", metavar="ID", default=None, help="flight log: " + FLIGHT_HELP)
     p.add_argument("--results", required=True, metavar="FILE", help="results CSV to write")
     p.add_argument("--force", action="store_true", help=FORCE_HELP)
     p.add_argument(

@@ -33,17 +33,26 @@ the seeking reader, which needs the footer, recover nothing from a killed file;
 ``tests/test_flightlog.py`` shows both.) Power loss is a different matter: only the file
 close on rotation/stop calls ``fsync``.
 
-*Files.* ``tcm-YYYYmmdd-HHMMSS-NNN.mcap`` (UTC wall time of :meth:`FlightLogWriter.start`,
-part counter ``NNN``): a new part when the current one exceeds ``rotate_size_mb`` (MB =
-10⁶ bytes) or ``rotate_interval_s``; every part starts with the ``"tcm-companion"``
-metadata record, and a closed part has the full MCAP summary (index, statistics), so each
-part opens on its own in Foxglove or ``mcap info``.
+*Files.* ``tcm-YYYYmmdd-HHMMSS-FLIGHTID-NNN.mcap`` (UTC wall time of
+:meth:`FlightLogWriter.start`, the flight's id, part counter ``NNN``): a new part when the
+current one exceeds ``rotate_size_mb`` (MB = 10⁶ bytes) or ``rotate_interval_s``; every
+part starts with the ``"tcm-companion"`` metadata record (with ``flight_id`` and the
+part's number ``log_part``), and a closed part has the full MCAP summary (index,
+statistics), so each part opens on its own in Foxglove or ``mcap info``. The flight id
+(12 hex digits) is random unless given (a deterministic run derives its own:
+:mod:`tcm_companion.logsetup`): a reader joins the parts of one flight, never two
+flights that share a directory (:func:`~.reader.select_flight`).
 
 *Disk.* Below ``min_free_mb`` of free space (checked at most once a second, in the writer
 thread) frames and annotations are dropped (counted); MAVLink and JSON continue. A write
 error (ENOSPC, EIO, the directory or file removed) never ends the thread: it is counted,
 reported once through ``on_event``, the state becomes ``"fault"`` (items are dropped and
-counted) and a new part is tried every ``retry_interval_s``.
+counted) and a new part is tried every ``retry_interval_s`` (after a full disk, once
+there is room for a part's start and a chunk). The part that failed stays readable up to
+its last chunk that reached the OS; what was counted as logged but had not (the open
+chunk) is counted again as dropped: ``dropped_disk`` for a full disk (ENOSPC, EDQUOT),
+like the items dropped while it stays full, ``dropped_error`` for other errors. A part
+that never got a message out, and a part start that failed, leave no file.
 
 *Events.* ``on_event(severity, text)`` is called from the writer thread: it must be
 thread-safe and quick (e.g. ``loop.call_soon_threadsafe``); its exceptions are swallowed.
@@ -98,11 +107,13 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 from .. import __version__
 from . import topics
 from .reader import (
+    FLIGHT_ID_RE,
     METADATA_NAME,
     LogRecord,
     decode_image,
     decode_json,
     log_files,
+    new_flight_id,
     part_name,
     read_log,
     read_metadata,
@@ -388,6 +399,7 @@ class FlightLogWriter:
     the records' own time stamps instead of the wall clock's (the same crash-safety
     bound, in the log's time); a producer waits for room instead of dropping; parts are
     named after ``session`` (e.g. the simulation's start time) instead of the wall clock.
+    ``flight_id`` (12 hex digits; default random) is the flight's id.
     """
 
     def __init__(
@@ -402,10 +414,15 @@ class FlightLogWriter:
         retry_interval_s: float = 3.0,
         deterministic: bool = False,
         session: str | None = None,
+        flight_id: str | None = None,
     ) -> None:
         self.config = config
         self.deterministic = deterministic
         self._session_name = session
+        if flight_id is not None and not FLIGHT_ID_RE.match(flight_id):
+            raise ValueError(f"flight_id must be 12 hex digits, got {flight_id!r}")
+        #: This flight's id: in every part's metadata and file name.
+        self.flight_id = flight_id if flight_id is not None else new_flight_id()
         self.directory = Path(directory)
         if wall_minus_mono_ns is None:
             wall_minus_mono_ns = time.time_ns() - time.monotonic_ns()
@@ -481,6 +498,7 @@ class FlightLogWriter:
         self._started = True
         meta = {str(k): _metadata_value(v) for k, v in metadata.items()}
         meta.update(
+            flight_id=self.flight_id,
             log_format=LOG_FORMAT,
             wall_minus_mono_ns=str(self.wall_minus_mono_ns),
             image_format=self.config.image_format,
@@ -925,7 +943,7 @@ class FlightLogWriter:
         """Open the next part: header, metadata record, flushed; raises on failure."""
         self.directory.mkdir(parents=True, exist_ok=True)
         for _ in range(100_000):
-            path = self.directory / part_name(self._session, self._counter)
+            path = self.directory / part_name(self._session, self._counter, self.flight_id)
             try:
                 fh = self._open_stream(path)
                 break

@@ -153,12 +153,20 @@ def split_mavlink(
         yield t, bytes(msg.get_msgbuf())
 
 
-def check_log_path(log_path: Path) -> None:
-    """A log file, or a directory holding rotated parts; else an error naming it."""
+def check_log_path(log_path: Path, flight: str | None = None) -> dict[str, str]:
+    """A log file, or a directory holding rotated parts, with a readable metadata record
+    (of the flight ``flight`` picks: :func:`~tcm_companion.flightlog.reader.select_flight`);
+    else an error naming it. Returns the metadata."""
     if not log_path.exists():
         raise LogConversionError(f"{log_path}: no such log file or directory")
     if log_path.is_dir() and not reader.log_files(log_path):
         raise LogConversionError(f"{log_path}: directory holds no flight log (tcm-*.mcap)")
+    metadata = reader.read_metadata(log_path, flight)
+    if not metadata:
+        damaged = reader.check_log(log_path, flight).problems()
+        why = "; ".join(damaged) if damaged else "not a flight log?"
+        raise LogConversionError(f"{log_path}: no tcm-companion metadata record readable: {why}")
+    return metadata
 
 
 def _wall_minus_mono_us(metadata: dict[str, str], offsets_ns: list[int]) -> int:
@@ -195,6 +203,7 @@ def log_to_scenario(
     camera_id: int = 0,
     *,
     name: str | None = None,
+    flight: str | None = None,
 ) -> ExportSummary:
     """Write the flight log ``log_path`` (file or rotated directory) as a scenario.
 
@@ -202,14 +211,15 @@ def log_to_scenario(
     ``camera{camera_id}``), ``frames/NNNNNN.png`` with ``frames.csv`` (capture times) from
     ``/camera{camera_id}/image``, and ``telemetry.tlog`` from ``/mavlink/in`` (each MAVLink
     frame with its receive time). Raises :class:`LogConversionError` naming the log when
-    it lacks the camera model, the camera's images or the autopilot's attitude.
+    it lacks the camera model, the camera's images or the autopilot's attitude. A
+    directory of several flights exports the one ``flight`` picks (else
+    :class:`~tcm_companion.flightlog.reader.FlightSelectionError`, listing them).
     """
     log_path = Path(log_path)
     out = Path(out_dir)
-    check_log_path(log_path)
+    metadata = check_log_path(log_path, flight)
     if out.resolve() == log_path.resolve():
         raise LogConversionError(f"{out}: the scenario directory cannot be the log itself")
-    metadata = reader.read_metadata(log_path)
     camera = camera_from_metadata(metadata, camera_id, log_path)
 
     image_topic = topics.camera_image(camera_id)
@@ -221,7 +231,7 @@ def log_to_scenario(
     offsets_ns: list[int] = []
     skipped = 0
     log_report = reader.LogReport()
-    for rec in reader.read_log(log_path, [image_topic, topics.MAVLINK_IN], log_report):
+    for rec in reader.read_log(log_path, [image_topic, topics.MAVLINK_IN], log_report, flight):
         if rec.topic == topics.MAVLINK_IN:
             chunks.append((rec.publish_time_ns // 1000, bytes(rec.data)))
             offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
@@ -318,6 +328,7 @@ def log_to_scenario(
         )
     # a truncated or damaged log: the scenario holds only what was readable; say so
     summary.warnings += [f"{p} (exported what was readable)" for p in log_report.problems()]
+    summary.warnings += log_report.notes
     for w in summary.warnings:
         log.warning("%s", w)
     return summary

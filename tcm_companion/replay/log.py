@@ -59,12 +59,12 @@ class ReplayedFrame:
     result: FrameResult  # the same frame, recomputed
 
 
-def _metadata(path: Path) -> dict[str, str]:
+def _metadata(path: Path, flight: str | None = None) -> dict[str, str]:
     from ..flightlog.reader import check_log, read_metadata
 
-    meta = read_metadata(path)
+    meta = read_metadata(path, flight)
     if not meta:
-        damaged = check_log(path).problems()
+        damaged = check_log(path, flight).problems()
         if damaged:  # cut or damaged before (or inside) its first record
             raise LogReplayError(
                 f"{path}: no tcm-companion metadata record readable: " + "; ".join(damaged)
@@ -111,11 +111,11 @@ def from_frame_counts(
     return out, new_params
 
 
-def log_config(path: str | Path) -> tuple[AppConfig, dict[str, float]]:
-    """The configuration and the parameter values in force when the log started (a log
-    written before the time base moved to seconds is read in today's keys; deprecated
-    keys are dropped)."""
-    meta = _metadata(Path(path))
+def log_config(path: str | Path, flight: str | None = None) -> tuple[AppConfig, dict[str, float]]:
+    """The configuration and the parameter values in force when the log (``flight``
+    of a directory of several) started (a log written before the time base moved to
+    seconds is read in today's keys; deprecated keys are dropped)."""
+    meta = _metadata(Path(path), flight)
     try:
         doc = tomllib.loads(meta.get("config", ""))
     except tomllib.TOMLDecodeError as exc:
@@ -145,20 +145,25 @@ def _cameras(meta: dict[str, str], where: Path) -> tuple[list[CameraModel], list
 
 
 def replay_log(
-    path: str | Path, camera_id: int = 0, report: LogReport | None = None
+    path: str | Path,
+    camera_id: int = 0,
+    report: LogReport | None = None,
+    flight: str | None = None,
 ) -> Iterator[ReplayedFrame]:
     """Yield every processed frame of camera ``camera_id`` of the log, recomputed.
 
     A truncated or damaged part is replayed as far as it is readable, then the next part
     (a frame processed there whose image was lost with the damaged tail is skipped);
     ``report`` says, once the iterator is exhausted, which parts were and how much of each
-    was read (:meth:`~tcm_companion.flightlog.reader.LogReport.problems`)."""
+    was read (:meth:`~tcm_companion.flightlog.reader.LogReport.problems`). A directory of
+    several flights replays the one ``flight`` picks
+    (:func:`~tcm_companion.flightlog.reader.select_flight`)."""
     from ..flightlog.reader import LogReport, decode_image, decode_json, read_log
 
     p = Path(path)
     report = report if report is not None else LogReport()
-    meta = _metadata(p)
-    config, params = log_config(p)
+    meta = _metadata(p, flight)
+    config, params = log_config(p, flight)
     models, names = _cameras(meta, p)
     if not 0 <= camera_id < len(models):
         raise LogReplayError(f"{p}: no camera {camera_id} in the log's metadata")
@@ -169,7 +174,7 @@ def replay_log(
     images: dict[int, np.ndarray] = {}
     image_topic = log_topics.camera_image(camera_id)
     topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT, log_topics.BOXES}
-    for rec in read_log(p, topics, report):
+    for rec in read_log(p, topics, report, flight):
         t_mono_us = rec.publish_time_ns // 1000
         if companion is None:
             companion = Companion(

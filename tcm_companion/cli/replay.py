@@ -28,21 +28,28 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
 
     A truncated or damaged log replays as far as it is readable and says so (stderr, and
     in the summary line); ``--check`` fails on it, as on a frame that differs and on a log
-    with no frame to compare."""
+    with no frame to compare. Processed frames the log lacks (dropped by the writer) are
+    counted and skipped; the frames after the first of them are replayed but not compared
+    (replay.log's docstring), and ``--check`` passes on what it could compare."""
     from ..flightlog.reader import LogReport
     from ..io.outputs import atomic_text
     from ..io.results import ResultsWriter
-    from ..replay.log import ROUNDING_REL_TOL, compare, replay_log
+    from ..replay.log import ROUNDING_REL_TOL, MissingFrame, compare, replay_log
 
-    rows = mismatched = rounding = beyond = frames = 0
+    rows = mismatched = rounding = beyond = frames = after_gap = after_same = 0
     diffs: list[str] = []
     report = LogReport()
+    missing: list[MissingFrame] = []
     with atomic_text(args.results, force=args.force) as fh:
         writer = ResultsWriter(fh)
-        for frame in replay_log(args.scenario, args.camera_id, report, args.flight):
+        for frame in replay_log(args.scenario, args.camera_id, report, args.flight, missing):
             writer.write(frame.result)
             frames += 1
             d = compare(frame)
+            if frame.after_gap:  # not comparable: its pipeline lacked a frame the flight's had
+                after_gap += 1
+                after_same += not d
+                continue
             if d:
                 mismatched += 1
                 rounding += not compare(frame, rel_tol=ROUNDING_REL_TOL)
@@ -81,9 +88,14 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
         if rounding
         else ""
     )
+    holes = ""
+    if missing:
+        holes = "; " + _missing_text(missing, after_gap, after_same)
+    compared = frames - after_gap
     print(
         f"{args.scenario}: {frames} frames replayed, {rows} rows -> {args.results}; "
-        f"{frames - mismatched} identical to the flight, {mismatched} differ{how}{incomplete}"
+        f"{compared - mismatched} identical to the flight, {mismatched} differ{how}{holes}"
+        f"{incomplete}"
     )
     for line in diffs[:20]:
         print(f"  {line}")
@@ -97,9 +109,28 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
         failed.append("the log is not whole (see the warnings above)")
     if not frames:
         failed.append(f"no processed frame of camera {args.camera_id} to compare")
+    elif not compared:
+        failed.append("no frame could be compared (the log lacks the first processed frame)")
     for why in failed:
         print(f"check failed: {why}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def _missing_text(missing: list[Any], after_gap: int, after_same: int) -> str:
+    """The summary's words for processed frames the log lacks, and what followed them."""
+    images = sum(m.count for m in missing if m.image)
+    results = sum(m.count for m in missing if not m.image)
+    whys = sorted({m.why for m in missing})
+    what = []
+    if images:
+        what.append(f"{images} processed frame(s) whose image is not in the log")
+    if results:
+        what.append(f"{results} whose result is not")
+    why = " / ".join("dropped by the writer" if w == "not logged" else w for w in whys)
+    return (
+        f"{' and '.join(what)} ({why}): not replayed; {after_gap} frame(s) after the first"
+        f" of them replayed without it, not compared ({after_same} identical anyway)"
+    )
 
 
 def _unknown_rows(previous: Any, frame_index: int, t_us: int) -> Any:

@@ -22,6 +22,15 @@ bit-exact by default; ``rel_tol`` accepts such rounding differences in the dispa
 A truncated or damaged log (a killed daemon, a copy taken while it was written) replays as
 far as it is readable; what was not is in the :class:`~tcm_companion.flightlog.reader.LogReport`
 given to :func:`replay_log` (``replay --check`` fails on it).
+
+A log with holes replays too. The writer drops frames by design (a full queue, the
+disk's free-space floor, a full disk; counted in the health records), and a damaged
+part loses its tail: a processed frame whose image is not in the log cannot be
+recomputed (:class:`MissingFrame`), nor one whose result is not (a jump in the logged
+``frame_index``). Replay skips it, counts it and goes on, but from then on its pipeline
+lacks a frame the daemon's had (flow, tracks and their histories differ), so the frames
+after the first hole are recomputed without being comparable to the flight's
+(:attr:`ReplayedFrame.after_gap`): ``replay --check`` compares the frames before it.
 """
 
 from __future__ import annotations
@@ -57,6 +66,21 @@ class LogReplayError(ValueError):
 class ReplayedFrame:
     logged: dict[str, Any]  # the /tcm/result document written in flight
     result: FrameResult  # the same frame, recomputed
+    # A frame the daemon processed before this one could not be replayed (its image or
+    # its result is not in the log): this one's pipeline state is not the flight's.
+    after_gap: bool = False
+
+
+@dataclass(frozen=True)
+class MissingFrame:
+    """Processed frames that replay could not recompute: the log lacks their image
+    (``t_capture_us`` says which), or their results (``count`` of them, told by a jump
+    in the logged ``frame_index``; ``t_capture_us`` is then the next logged frame's)."""
+
+    t_capture_us: int
+    why: str  # "not logged" (dropped by the writer) or "lost with a damaged part"
+    count: int = 1
+    image: bool = True  # the image is missing (False: the results are)
 
 
 def _metadata(path: Path, flight: str | None = None) -> dict[str, str]:
@@ -149,6 +173,7 @@ def replay_log(
     camera_id: int = 0,
     report: LogReport | None = None,
     flight: str | None = None,
+    missing: list[MissingFrame] | None = None,
 ) -> Iterator[ReplayedFrame]:
     """Yield every processed frame of camera ``camera_id`` of the log, recomputed.
 
@@ -157,7 +182,9 @@ def replay_log(
     ``report`` says, once the iterator is exhausted, which parts were and how much of each
     was read (:meth:`~tcm_companion.flightlog.reader.LogReport.problems`). A directory of
     several flights replays the one ``flight`` picks
-    (:func:`~tcm_companion.flightlog.reader.select_flight`)."""
+    (:func:`~tcm_companion.flightlog.reader.select_flight`). A processed frame the log
+    lacks is skipped and appended to ``missing`` (see the module docstring); the frames
+    after it come with ``after_gap``."""
     from ..flightlog.reader import LogReport, decode_image, decode_json, read_log
 
     p = Path(path)
@@ -172,6 +199,8 @@ def replay_log(
     endpoint = CompanionEndpoint(config.mavlink.endpoint, params)
     companion: Companion | None = None
     images: dict[int, np.ndarray] = {}
+    gap = False
+    last_index: int | None = None
     image_topic = log_topics.camera_image(camera_id)
     topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT, log_topics.BOXES}
     for rec in read_log(p, topics, report, flight):
@@ -196,12 +225,29 @@ def replay_log(
             # Frames superseded before processing were logged but never processed.
             for old in [t for t in images if t < t_capture]:
                 del images[old]
-            if frame_image is None:
-                if any(part.damaged for part in report.parts[:-1]):
-                    continue  # its image was in the lost tail of a damaged part (reported)
-                raise LogReplayError(
-                    f"{p}: frame at {t_capture} us was processed but is not in the log"
-                )
+            # A damaged part's unread tail held the images captured before the next part
+            # began (its results too: those are not here to ask for them).
+            cur = report.parts[-1]
+            lost = (
+                len(report.parts) > 1
+                and report.parts[-2].damaged
+                and cur.first_time_ns is not None
+                and t_capture * 1000 < cur.first_time_ns
+            )
+            why = "lost with a damaged part" if lost else "not logged"
+            index = doc.get("frame_index")
+            if isinstance(index, int) and last_index is not None and index > last_index + 1:
+                # results of processed frames are not in the log (a reset, on a pipeline
+                # rebuild, counts down: not a hole)
+                gap = True
+                if missing is not None:
+                    missing.append(MissingFrame(t_capture, why, index - last_index - 1, False))
+            last_index = index if isinstance(index, int) else None
+            if frame_image is None:  # dropped by the writer, or lost with a damaged tail
+                gap = True
+                if missing is not None:
+                    missing.append(MissingFrame(t_capture, why))
+                continue
             offset = doc.get("clock_offset_us")
             result = companion.replay_frame(
                 camera_id,
@@ -213,7 +259,7 @@ def replay_log(
             )
             if result is None:
                 raise LogReplayError(f"{p}: the pipeline raised on the frame at {t_capture} us")
-            yield ReplayedFrame(doc, result)
+            yield ReplayedFrame(doc, result, gap)
 
 
 #: Disparities this close (relative) differ by float rounding only: another CPU's SIMD loops

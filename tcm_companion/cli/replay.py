@@ -31,7 +31,7 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     with no frame to compare. Processed frames the log lacks (dropped by the writer) are
     counted and skipped; the frames after the first of them are replayed but not compared
     (replay.log's docstring), and ``--check`` passes on what it could compare."""
-    from ..flightlog.reader import LogReport
+    from ..flightlog.reader import LogReport, read_metadata
     from ..io.outputs import atomic_text
     from ..io.results import ResultsWriter
     from ..replay.log import ROUNDING_REL_TOL, MissingFrame, compare, replay_log
@@ -99,12 +99,21 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     )
     for line in diffs[:20]:
         print(f"  {line}")
+    jpeg = ""
+    if mismatched and read_metadata(args.scenario, args.flight).get("image_format") == "jpeg":
+        jpeg = (
+            ": the log's frames are JPEG (lossy), and replay runs on the decoded images, not"
+            " on the frames the daemon processed, so it cannot give the flight's results"
+            ' exactly; log PNG frames for an exact replay: [logging] image_format = "png"'
+            " (or --set logging.image_format=png)"
+        )
+        print(f"note: {mismatched} frame(s) differ{jpeg}", file=sys.stderr)
     if not args.check:
         return 0
     failed = []
     if beyond:
         within = f" beyond {args.rel_tol:g} relative" if args.rel_tol else ""
-        failed.append(f"{beyond} frame(s) differ from the flight{within}")
+        failed.append(f"{beyond} frame(s) differ from the flight{within}{jpeg}")
     if problems:
         failed.append("the log is not whole (see the warnings above)")
     if not frames:

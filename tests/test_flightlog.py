@@ -939,3 +939,44 @@ def test_a_full_disk_is_counted_as_dropped_disk_and_leaves_no_empty_parts(
     assert on_disk == sorted(p.name for p in s.files) and len(on_disk) == 2, on_disk
     assert all(read_metadata(p) for p in tmp_path.glob("*.mcap"))  # no empty part
     assert [sev for sev, _ in events] == ["error", "info"]
+
+
+def test_a_write_that_fails_inside_a_chunk_counts_every_item(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The disk fills while mcap writes a chunk it ended itself (inside ``add_message``):
+    the item being written and those pending in the chunk are each counted once, as
+    dropped (disk). (An item was left uncounted, and a deterministic run, which waits for
+    the counts to add up, hung in ``wait_drained``.)"""
+    broken = {"on": False}
+    real_open = FlightLogWriter._open_stream
+    monkeypatch.setattr(
+        FlightLogWriter,
+        "_open_stream",
+        lambda self, path: FailingFile(real_open(self, path), broken),
+    )
+    w = FlightLogWriter(
+        LoggingConfig(chunk_size_bytes=1024, flush_interval_s=60.0),
+        tmp_path,
+        wall_minus_mono_ns=WALL,
+        deterministic=True,
+        retry_interval_s=60.0,
+    )
+    w.start({})
+    tiny = np.zeros((4, 4, 3), np.uint8)
+    for k in range(2):  # small: they stay in the open chunk
+        assert w.log_frame(0, T0 + k, tiny)
+        assert w.log_json("/tcm/result", T0 + k, {"k": k})
+    assert w.wait_drained(10.0)
+    broken["on"] = True
+    assert w.log_frame(0, T0 + 10, noise_image(7))  # ends the chunk: the write fails
+    assert w.wait_drained(10.0)  # it did not: an item was never counted
+    w.stop()
+    s = w.stats
+    frames_account(s, 3)
+    frames = sum(1 for _ in read_log(tmp_path, {"/camera0/image"}))
+    messages = sum(1 for _ in read_log(tmp_path, {"/tcm/result"}))
+    assert (s.frames_logged, s.messages_logged) == (frames, messages), s  # what the file holds
+    assert s.frames_dropped_disk == 3 - frames >= 2 and s.frames_dropped_error == 0, s
+    assert s.messages_dropped_disk == 2 - messages, s
+    assert s.state == "off" and s.write_errors >= 1

@@ -744,18 +744,20 @@ class FlightLogWriter:
                 self._encode_error_reported = True
                 self._event("warning", f"log: cannot encode {_KIND_NAMES[kind]}: {e}")
             return
+        counted = False
         try:
             self._write(topic, channel_kind, log_ns, publish_ns, payload)
             with self._lock:
                 self._counts.count(kind, "logged")
             self._pending[kind != _FRAME] += 1
+            counted = True  # from here on a failure counts it again, as pending
             assert self._fh is not None
             pos = self._fh.tell()
             if pos != self._written_pos:  # mcap ended a chunk: push it to the OS now, so
                 self._fh.flush()  # that what is counted as logged is what the file holds
                 self._written(pos)
         except Exception as e:
-            if self._pending[kind != _FRAME] == 0:  # not counted yet (the write failed)
+            if not counted:  # the write itself failed
                 self._count(kind, _lost_outcome(e))
             self._enter_fault(e, time.monotonic())
             return

@@ -136,18 +136,21 @@ WRITER = textwrap.dedent(
     )
     w.start({"camera0": {"w": 360}})
     rng = np.random.default_rng(1)
-    img = rng.integers(0, 256, (220, 360, 3), dtype=np.uint8)  # ~240 kB as PNG
     calls = []
 
     def log(n):
         for _ in range(n):
             t = 1_000_000 + 40_000 * len(calls)
             calls.append(t)
+            img = rng.integers(0, 256, (220, 360, 3), dtype=np.uint8)  # ~240 kB as PNG
             w.log_frame(0, t, img)
             w.log_json("/tcm/result", t, {"t": t})
             time.sleep(0.01)
 
     log(2)
+    deadline = time.monotonic() + 30
+    while w.stats.bytes_written < 400_000 and time.monotonic() < deadline:
+        time.sleep(0.01)  # both in the file (flushed)
     fd = os.open(filler, os.O_WRONLY | os.O_CREAT)  # another program fills the disk
     try:
         while True:
@@ -156,7 +159,7 @@ WRITER = textwrap.dedent(
         pass
     os.close(fd)
     log(6)
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 30
     while w.state != "fault" and time.monotonic() < deadline:
         time.sleep(0.01)
     state_full = w.state

@@ -260,8 +260,9 @@ def test_a_log_whose_writer_dropped_frames_replays_and_checks_what_it_can(
     assert "57 frames replayed, 57 rows" in out
     assert compared(out) == 30  # the frames before the hole (differing by rounding at most)
     assert (
-        "4 processed frame(s) whose image is not in the log (dropped by the writer): not"
-        " replayed; 27 frame(s) after the first of them replayed without it, not compared"
+        "4 processed frame(s) whose image is not in the log (dropped by the writer), not"
+        " replayed; 27 frame(s) after the first hole replayed without what it lacks, not"
+        " compared"
     ) in out
     # The first frame missing: nothing to compare, and the check says so.
     first = {int(results[0]["t_capture_us"]) * 1000}
@@ -282,7 +283,51 @@ def test_a_log_whose_writer_dropped_frames_replays_and_checks_what_it_can(
     rc, out, err = replay(capsys, str(path), *args, "--force")
     assert rc == 0, (out, err)
     assert "60 frames replayed" in out and compared(out) == 20
-    assert "1 whose result is not (dropped by the writer)" in out
+    assert "1 whose result is not (dropped by the writer), not replayed" in out
+
+
+def test_messages_the_writer_dropped_make_a_hole_too(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A live writer whose queue fills drops MAVLink bytes and box-feed datagrams too
+    (counted in the health records' ``log`` counters, once a second): the replay then
+    lacks inputs the daemon had, and its results differ from the drop on; --check failed
+    on frames it could not have reproduced. The frames processed after the health record
+    before the count went up are not compared, and the summary says why."""
+    from tcm_companion.flightlog.reader import read_log
+
+    health = [r.publish_time_ns for r in read_log(REFERENCE, {topics.HEALTH})]
+    t1, t2 = health[1], health[2]
+    mav = [r for r in read_log(REFERENCE, {topics.MAVLINK_IN}) if t1 < r.publish_time_ns < t2]
+    assert len(mav) > 20
+
+    def counted(topic: str, data: bytes) -> bytes:  # the record after the drop counts it
+        if topic == topics.HEALTH:
+            doc = json.loads(data)
+            if doc["log"]["frames_logged"] == 48:  # the third one, at t2
+                doc["log"]["messages_dropped_queue"] = len(mav)
+                return json.dumps(doc).encode()
+        return data
+
+    (path,) = split_log(
+        REFERENCE,
+        tmp_path / "log",
+        1,
+        edit=counted,
+        drop=lambda topic, t_ns: topic == topics.MAVLINK_IN and t1 < t_ns < t2,
+    )
+    before = sum(
+        1 for r in read_log(REFERENCE, {topics.RESULT}) if r.publish_time_ns < t1
+    )  # the results logged before the health record at t1
+    rc, out, err = replay(
+        capsys, str(path), "--results", str(tmp_path / "r.csv"), "--rel-tol", "1e-9", "--check"
+    )
+    assert rc == 0, (out, err)
+    assert "61 frames replayed" in out and compared(out) == before > 10
+    assert (
+        f"{len(mav)} other message(s) the writer dropped (MAVLink, box feed, ...: the log's"
+        " health records count them)"
+    ) in out
 
 
 def compared(out: str) -> int:

@@ -126,19 +126,31 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
 
 
 def _missing_text(missing: list[Any], after_gap: int, after_same: int) -> str:
-    """The summary's words for processed frames the log lacks, and what followed them."""
-    images = sum(m.count for m in missing if m.image)
-    results = sum(m.count for m in missing if not m.image)
-    whys = sorted({m.why for m in missing})
-    what = []
-    if images:
-        what.append(f"{images} processed frame(s) whose image is not in the log")
-    if results:
-        what.append(f"{results} whose result is not")
-    why = " / ".join("dropped by the writer" if w == "not logged" else w for w in whys)
+    """The summary's words for what the log lacks, and for the frames after the first hole."""
+
+    def why(kind: str) -> str:
+        whys = sorted({m.why for m in missing if m.kind == kind})
+        return " / ".join("dropped by the writer" if w == "not logged" else w for w in whys)
+
+    def count(kind: str) -> int:
+        return sum(m.count for m in missing if m.kind == kind)
+
+    holes = []
+    if count("image"):
+        holes.append(
+            f"{count('image')} processed frame(s) whose image is not in the log"
+            f" ({why('image')}), not replayed"
+        )
+    if count("result"):
+        holes.append(f"{count('result')} whose result is not ({why('result')}), not replayed")
+    if count("messages"):
+        holes.append(
+            f"{count('messages')} other message(s) the writer dropped (MAVLink, box feed, ...:"
+            " the log's health records count them)"
+        )
     return (
-        f"{' and '.join(what)} ({why}): not replayed; {after_gap} frame(s) after the first"
-        f" of them replayed without it, not compared ({after_same} identical anyway)"
+        f"{'; '.join(holes)}; {after_gap} frame(s) after the first hole replayed without what"
+        f" it lacks, not compared ({after_same} identical anyway)"
     )
 
 

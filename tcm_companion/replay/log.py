@@ -31,6 +31,10 @@ recomputed (:class:`MissingFrame`), nor one whose result is not (a jump in the l
 lacks a frame the daemon's had (flow, tracks and their histories differ), so the frames
 after the first hole are recomputed without being comparable to the flight's
 (:attr:`ReplayedFrame.after_gap`): ``replay --check`` compares the frames before it.
+Other messages the writer dropped (MAVLink bytes, box-feed datagrams: inputs replay then
+lacks) are told by the health records' log counters, once a second: the frames processed
+after the last health record before the count went up are after a hole too (replay
+holds each frame back until the next health record, or 5 s of the log, to know).
 """
 
 from __future__ import annotations
@@ -73,14 +77,30 @@ class ReplayedFrame:
 
 @dataclass(frozen=True)
 class MissingFrame:
-    """Processed frames that replay could not recompute: the log lacks their image
-    (``t_capture_us`` says which), or their results (``count`` of them, told by a jump
-    in the logged ``frame_index``; ``t_capture_us`` is then the next logged frame's)."""
+    """What replay lacks, by ``kind``: a processed frame's image (``"image"``;
+    ``t_capture_us`` says which), the results of ``count`` processed frames (``"result"``,
+    told by a jump in the logged ``frame_index``; ``t_capture_us`` is then the next logged
+    frame's), or ``count`` other messages the writer dropped (``"messages"``: MAVLink,
+    box-feed datagrams...; told by the health records; ``t_capture_us`` is then the time
+    of the health record before them)."""
 
     t_capture_us: int
     why: str  # "not logged" (dropped by the writer) or "lost with a damaged part"
     count: int = 1
-    image: bool = True  # the image is missing (False: the results are)
+    kind: str = "image"  # "image", "result" or "messages"
+
+
+#: How long replay holds frames back waiting for a health record (µs of the log).
+_HEALTH_WAIT_US = 5_000_000
+
+
+def _log_drops(doc: dict[str, Any]) -> int | None:
+    """Messages (not frames) the writer had dropped, by a health record's log counters."""
+    lg = doc.get("log")
+    if not isinstance(lg, dict):
+        return None
+    keys = ("messages_dropped_queue", "messages_dropped_disk", "messages_dropped_error")
+    return sum(int(v) for k in keys if isinstance(v := lg.get(k), int))
 
 
 def _metadata(path: Path, flight: str | None = None) -> dict[str, str]:
@@ -201,15 +221,42 @@ def replay_log(
     images: dict[int, np.ndarray] = {}
     gap = False
     last_index: int | None = None
+    # Frames held back until a health record says whether messages were dropped meanwhile.
+    held: list[ReplayedFrame] = []
+    drops = 0  # messages dropped by the last health record
+    health_us: int | None = None  # its time
     image_topic = log_topics.camera_image(camera_id)
     topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT, log_topics.BOXES}
+    topics.add(log_topics.HEALTH)
     for rec in read_log(p, topics, report, flight):
         t_mono_us = rec.publish_time_ns // 1000
         if companion is None:
             companion = Companion(
                 models, config.pipeline, endpoint, t_mono_us, config.daemon, names
             )
-        if rec.topic == log_topics.MAVLINK_IN:
+        if held and t_mono_us - held[0].result.t_us > _HEALTH_WAIT_US:
+            yield from held  # no health record to wait for
+            held.clear()
+        if rec.topic == log_topics.HEALTH:
+            now = _log_drops(decode_json(rec))
+            if now is not None and now > drops:
+                # dropped since the last health record: what came after that one lacks them
+                since = health_us if health_us is not None else -1
+                held = [
+                    f
+                    if f.after_gap or int(f.logged.get("t_process_us", 0)) <= since
+                    else ReplayedFrame(f.logged, f.result, True)
+                    for f in held
+                ]
+                gap = True
+                if missing is not None:
+                    missing.append(MissingFrame(since, "not logged", now - drops, "messages"))
+            if now is not None:
+                drops = now
+            health_us = t_mono_us
+            yield from held
+            held.clear()
+        elif rec.topic == log_topics.MAVLINK_IN:
             companion.receive_data(rec.data, t_mono_us)
         elif rec.topic == log_topics.BOXES:  # the live box feed, as the daemon received it
             companion.on_box_datagram(str(decode_json(rec).get("datagram", "")).encode(), t_mono_us)
@@ -241,7 +288,7 @@ def replay_log(
                 # rebuild, counts down: not a hole)
                 gap = True
                 if missing is not None:
-                    missing.append(MissingFrame(t_capture, why, index - last_index - 1, False))
+                    missing.append(MissingFrame(t_capture, why, index - last_index - 1, "result"))
             last_index = index if isinstance(index, int) else None
             if frame_image is None:  # dropped by the writer, or lost with a damaged tail
                 gap = True
@@ -259,7 +306,8 @@ def replay_log(
             )
             if result is None:
                 raise LogReplayError(f"{p}: the pipeline raised on the frame at {t_capture} us")
-            yield ReplayedFrame(doc, result, gap)
+            held.append(ReplayedFrame(doc, result, gap))
+    yield from held
 
 
 #: Disparities this close (relative) differ by float rounding only: another CPU's SIMD loops

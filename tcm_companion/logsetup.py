@@ -17,10 +17,18 @@ Two modes:
   no simulated time), the counters are read once the writer has caught up, and chunks
   end every ``flush_interval_s`` of the *records'* time instead of the wall clock's
   (the writer's ``deterministic`` mode).
+
+Every flight has an id, in each part's metadata and file name, so that the flights that
+share a directory are never joined. Live it is random. A deterministic run derives it
+from what makes the run (:func:`deterministic_flight_id`: the configuration, seed
+included, the parameters and the simulated start) and from the ids already in the
+directory: the same run into an empty directory gives the same bytes every time, and a
+second run into the same directory gets another id — two flights, not one.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -30,6 +38,7 @@ from pathlib import Path
 from . import __version__
 from .config import AppConfig, config_to_toml
 from .flightlog.handle import FlightLog
+from .flightlog.reader import log_files, parse_part_name
 from .flightlog.writer import FlightLogWriter
 from .service.plumbing import CameraInput
 
@@ -67,6 +76,24 @@ def metadata(
     return meta
 
 
+def deterministic_flight_id(meta: Mapping[str, str], directory: Path) -> str:
+    """The flight id of a deterministic run: a hash of its metadata record (the
+    configuration with its seed, the parameters, the cameras, the simulated start) and of
+    how many of the ids it would take are already in ``directory`` — the first one not
+    there (a second identical run into one directory is another flight)."""
+    base = hashlib.sha256(json.dumps(dict(meta), sort_keys=True).encode()).hexdigest()
+    try:
+        names = [parse_part_name(f.name) for f in log_files(directory)]
+    except FileNotFoundError:  # no directory yet
+        names = []
+    taken = {n[1] for n in names if n is not None and n[1]}
+    for n in range(1_000_000):
+        fid = hashlib.sha256(f"{base}/{n}".encode()).hexdigest()[:12]
+        if fid not in taken:
+            return fid
+    raise RuntimeError(f"{directory}: no free flight id")  # pragma: no cover
+
+
 def start_flight_log(
     config: AppConfig,
     directory: Path,
@@ -95,10 +122,12 @@ def start_flight_log(
         if holder:
             holder[0].events.put((severity, text))
 
-    session = None
+    session = flight_id = None
+    meta = metadata(config, cameras, params, started_unix_us)
     if deterministic:
         assert started_unix_us is not None
         session = time.strftime("%Y%m%d-%H%M%S", time.gmtime(started_unix_us / 1e6))
+        flight_id = deterministic_flight_id(meta, directory)
     writer = FlightLogWriter(
         config.logging,
         directory,
@@ -106,8 +135,9 @@ def start_flight_log(
         on_event=on_event,
         deterministic=deterministic,
         session=session,
+        flight_id=flight_id,
     )
     flight_log = FlightLog(writer)
     holder.append(flight_log)
-    writer.start(metadata(config, cameras, params, started_unix_us))
+    writer.start(meta)
     return flight_log

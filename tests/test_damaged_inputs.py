@@ -158,11 +158,16 @@ def test_check_with_a_tolerance_accepts_rounding_and_nothing_more(
 
 
 def split_log(
-    src: Path, dst: Path, n: int, edit: Callable[[str, bytes], bytes] | None = None
+    src: Path,
+    dst: Path,
+    n: int,
+    edit: Callable[[str, bytes], bytes] | None = None,
+    drop: Callable[[str, int], bool] | None = None,
 ) -> list[Path]:
     """``src`` rewritten as ``n`` parts of a log directory (each with the metadata, the
     messages in their order, 128 KiB chunks), as the writer's rotation would leave it;
-    ``edit(topic, data)`` may change a message's data on the way."""
+    ``edit(topic, data)`` may change a message's data on the way, and a message for which
+    ``drop(topic, publish_time_ns)`` is true is left out."""
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import Writer
@@ -193,6 +198,8 @@ def split_log(
                 w.add_metadata(m.name, m.metadata)
             ids: dict[int, int] = {}
             for msg in messages[k * per : (k + 1) * per]:
+                if drop is not None and drop(channels[msg.channel_id].topic, msg.publish_time):
+                    continue
                 if msg.channel_id not in ids:
                     ch = channels[msg.channel_id]
                     sid = 0
@@ -228,6 +235,115 @@ def test_a_log_of_several_parts_names_the_damaged_part(
     # the parts after the damage are replayed too (a frame whose image was lost is skipped)
     frames = int(re.search(r"(\d+) frames replayed", out).group(1))  # type: ignore[union-attr]
     assert 0 < frames < 70
+
+
+def test_a_log_whose_writer_dropped_frames_replays_and_checks_what_it_can(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 24 §2: frames the writer dropped (queue full, disk floor, disk full; counted
+    in the log's health records) stopped the replay: "error: frame at ... us was processed
+    but is not in the log", exit 2. Now they are counted and skipped; the frames after the
+    first hole are replayed but not compared (the replay's pipeline lacked a frame the
+    flight's had), and --check passes when every frame it could compare is the flight's."""
+    from tcm_companion.flightlog.reader import decode_json, read_log
+
+    results = [decode_json(r) for r in read_log(REFERENCE, {topics.RESULT})]
+    assert len(results) == 61
+    holes = {int(d["t_capture_us"]) * 1000 for d in results[30:34]}  # 4 frames mid-flight
+    image = topics.camera_image(0)
+    (path,) = split_log(
+        REFERENCE, tmp_path / "log", 1, drop=lambda topic, t_ns: topic == image and t_ns in holes
+    )
+    args = ("--results", str(tmp_path / "r.csv"), "--rel-tol", "1e-9", "--check")
+    rc, out, err = replay(capsys, str(path), *args)
+    assert rc == 0, (out, err)
+    assert "57 frames replayed, 57 rows" in out
+    assert compared(out) == 30  # the frames before the hole (differing by rounding at most)
+    assert (
+        "4 processed frame(s) whose image is not in the log (dropped by the writer), not"
+        " replayed; 27 frame(s) after the first hole replayed without what it lacks, not"
+        " compared"
+    ) in out
+    # The first frame missing: nothing to compare, and the check says so.
+    first = {int(results[0]["t_capture_us"]) * 1000}
+    (path,) = split_log(
+        REFERENCE, tmp_path / "log2", 1, drop=lambda topic, t_ns: topic == image and t_ns in first
+    )
+    rc, out, err = replay(capsys, str(path), *args, "--force")
+    assert rc == 1 and "60 frames replayed" in out, (out, err)
+    assert "check failed: no frame could be compared" in err
+    # A result the writer dropped (a jump in the logged frame_index) is a hole too.
+    dropped = int(results[20]["t_capture_us"])
+    (path,) = split_log(
+        REFERENCE,
+        tmp_path / "log3",
+        1,
+        drop=lambda topic, t_ns: topic == topics.RESULT and _result_of(t_ns, results) == dropped,
+    )
+    rc, out, err = replay(capsys, str(path), *args, "--force")
+    assert rc == 0, (out, err)
+    assert "60 frames replayed" in out and compared(out) == 20
+    assert "1 whose result is not (dropped by the writer), not replayed" in out
+
+
+def test_messages_the_writer_dropped_make_a_hole_too(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A live writer whose queue fills drops MAVLink bytes and box-feed datagrams too
+    (counted in the health records' ``log`` counters, once a second): the replay then
+    lacks inputs the daemon had, and its results differ from the drop on; --check failed
+    on frames it could not have reproduced. The frames processed after the health record
+    before the count went up are not compared, and the summary says why."""
+    from tcm_companion.flightlog.reader import read_log
+
+    health = [r.publish_time_ns for r in read_log(REFERENCE, {topics.HEALTH})]
+    t1, t2 = health[1], health[2]
+    mav = [r for r in read_log(REFERENCE, {topics.MAVLINK_IN}) if t1 < r.publish_time_ns < t2]
+    assert len(mav) > 20
+
+    def counted(topic: str, data: bytes) -> bytes:  # the record after the drop counts it
+        if topic == topics.HEALTH:
+            doc = json.loads(data)
+            if doc["log"]["frames_logged"] == 48:  # the third one, at t2
+                doc["log"]["messages_dropped_queue"] = len(mav)
+                return json.dumps(doc).encode()
+        return data
+
+    (path,) = split_log(
+        REFERENCE,
+        tmp_path / "log",
+        1,
+        edit=counted,
+        drop=lambda topic, t_ns: topic == topics.MAVLINK_IN and t1 < t_ns < t2,
+    )
+    before = sum(
+        1 for r in read_log(REFERENCE, {topics.RESULT}) if r.publish_time_ns < t1
+    )  # the results logged before the health record at t1
+    rc, out, err = replay(
+        capsys, str(path), "--results", str(tmp_path / "r.csv"), "--rel-tol", "1e-9", "--check"
+    )
+    assert rc == 0, (out, err)
+    assert "61 frames replayed" in out and compared(out) == before > 10
+    assert (
+        f"{len(mav)} other message(s) the writer dropped (MAVLink, box feed, ...: the log's"
+        " health records count them)"
+    ) in out
+
+
+def compared(out: str) -> int:
+    """Frames the summary compared: identical + differing."""
+    m = re.search(r"(\d+) identical to the flight, (\d+) differ", out)
+    assert m, out
+    return int(m.group(1)) + int(m.group(2))
+
+
+def _result_of(t_ns: int, results: list[dict]) -> int | None:
+    """The capture time of the result logged at ``t_ns`` (results are logged when the
+    frame was processed, ``t_process_us``)."""
+    for d in results:
+        if int(d["t_process_us"]) * 1000 == t_ns:
+            return int(d["t_capture_us"])
+    return None
 
 
 # ---------------------------------------------------------------------------------------

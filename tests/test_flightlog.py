@@ -37,7 +37,6 @@ from tcm_companion.flightlog.reader import (
     decode_image,
     decode_json,
     log_files,
-    part_name,
     read_log,
     read_metadata,
 )
@@ -415,14 +414,25 @@ def test_the_reader_says_how_much_of_a_truncated_or_damaged_file_it_read(
 
 
 def test_a_damaged_part_of_several_is_named(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
-    write_everything(tmp_path / "one", "jpeg", sim_frames[:3])
-    (src,) = log_files(tmp_path / "one")
-    data = src.read_bytes()
+    # Three parts of one flight, as the writer's rotation leaves them (a part per frame:
+    # rotated by the records' time). Three copies of one part were used before: since
+    # flights have ids (issue 24), those are one part three times, not three parts.
     log = tmp_path / "log"
-    log.mkdir()
-    parts = [log / part_name("20260101-120000", k) for k in range(3)]
-    for p in parts:
-        p.write_bytes(data)
+    w = FlightLogWriter(
+        LoggingConfig(image_format="jpeg", rotate_interval_s=0.04),
+        log,
+        wall_minus_mono_ns=WALL,
+        deterministic=True,
+        session="20260101-120000",
+    )
+    w.start({"camera0": {"w": 360}})
+    for i, img in enumerate(sim_frames[:3]):
+        assert w.log_frame(0, T0 + 40_000 * i, img)
+        assert w.log_json("/tcm/result", T0 + 40_000 * i + 2_000, {"i": i})
+    w.stop()
+    parts = w.stats.files
+    assert parts == log_files(log) and len(parts) == 3
+    data = parts[1].read_bytes()
     parts[1].write_bytes(data[: len(data) - 200])  # the middle part lost its end
     report = LogReport()
     n = sum(1 for _ in read_log(log, report=report))
@@ -756,7 +766,9 @@ def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.Mo
     w.stop()
     s = w.stats
     frames_account(s, calls)
-    assert s.frames_dropped_error > 0 and s.write_errors >= 2
+    # ENOSPC: frames lost to the full disk count as dropped (disk), not (error), since
+    # issue 24 §2 (this asserted frames_dropped_error > 0 before)
+    assert s.frames_dropped_disk > 0 and s.frames_dropped_error == 0 and s.write_errors >= 2
     assert len(s.files) >= 2
     assert [sev for sev, _ in events] == ["error", "info"]
     got = [r.publish_time_ns // 1000 for r in read_log(tmp_path, {"/camera0/image"})]
@@ -869,3 +881,102 @@ def test_a_live_writer_is_woken_by_frames_not_by_every_item(tmp_path: Path) -> N
         w.stop()
     s = w.stats
     assert (s.messages_logged, s.frames_logged, s.messages_dropped_queue) == (42, 1, 0)
+
+
+def test_a_full_disk_is_counted_as_dropped_disk_and_leaves_no_empty_parts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 24 §2: ENOSPC during a write. What the writer had counted as logged but not
+    yet written out (the open chunk) is lost with the failed write: it is counted as
+    dropped (disk), so that ``frames_logged`` is what the file holds; while the disk is
+    full, frames are dropped (disk), not (error); the retries leave no empty parts behind
+    (each used to leave one, ``-001``, ``-002`` ...); once there is room again the log
+    goes on in a new part."""
+    broken = {"on": False}
+    real_open = FlightLogWriter._open_stream
+    monkeypatch.setattr(
+        FlightLogWriter,
+        "_open_stream",
+        lambda self, path: FailingFile(real_open(self, path), broken),
+    )
+    free = {"bytes": 10**12}
+    w, events = writer_with_events(
+        tmp_path, retry_interval_s=0.05, free_bytes=lambda p: free["bytes"]
+    )
+    img = noise_image(6)
+    calls = 0
+
+    def log_some(n: int) -> None:
+        nonlocal calls
+        for _ in range(n):
+            calls += 1
+            t = T0 + 40_000 * calls
+            assert w.log_frame(0, t, img)
+            assert w.log_json("/tcm/result", t, {"t": t})
+        assert wait_for(lambda: w.stats.queue_depth == 0)
+
+    log_some(3)
+    assert wait_for(lambda: w.stats.bytes_written > 0)
+    time.sleep(0.1)  # flushed: those three are in the file
+    broken["on"] = True
+    log_some(4)  # into the open chunk, then the flush fails
+    assert wait_for(lambda: w.state == "fault")
+    log_some(3)  # while the disk is full
+    time.sleep(0.4)  # several failed retries
+    assert w.state == "fault"
+    broken["on"] = False
+    assert wait_for(lambda: w.state == "recording")
+    log_some(2)
+    w.stop()
+    s = w.stats
+    frames_account(s, calls)
+    got = [r.publish_time_ns // 1000 for r in read_log(tmp_path, {"/camera0/image"})]
+    assert s.frames_logged == len(got) == 5, (s, got)  # 3 before, 2 after
+    assert s.frames_dropped_disk == 7 and s.frames_dropped_error == 0
+    assert s.messages_logged == 5 and s.messages_dropped_disk == 7
+    assert s.write_errors >= 2  # the failed write and at least one failed retry
+    on_disk = sorted(p.name for p in tmp_path.glob("*.mcap"))
+    assert on_disk == sorted(p.name for p in s.files) and len(on_disk) == 2, on_disk
+    assert all(read_metadata(p) for p in tmp_path.glob("*.mcap"))  # no empty part
+    assert [sev for sev, _ in events] == ["error", "info"]
+
+
+def test_a_write_that_fails_inside_a_chunk_counts_every_item(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The disk fills while mcap writes a chunk it ended itself (inside ``add_message``):
+    the item being written and those pending in the chunk are each counted once, as
+    dropped (disk). (An item was left uncounted, and a deterministic run, which waits for
+    the counts to add up, hung in ``wait_drained``.)"""
+    broken = {"on": False}
+    real_open = FlightLogWriter._open_stream
+    monkeypatch.setattr(
+        FlightLogWriter,
+        "_open_stream",
+        lambda self, path: FailingFile(real_open(self, path), broken),
+    )
+    w = FlightLogWriter(
+        LoggingConfig(chunk_size_bytes=1024, flush_interval_s=60.0),
+        tmp_path,
+        wall_minus_mono_ns=WALL,
+        deterministic=True,
+        retry_interval_s=60.0,
+    )
+    w.start({})
+    tiny = np.zeros((4, 4, 3), np.uint8)
+    for k in range(2):  # small: they stay in the open chunk
+        assert w.log_frame(0, T0 + k, tiny)
+        assert w.log_json("/tcm/result", T0 + k, {"k": k})
+    assert w.wait_drained(10.0)
+    broken["on"] = True
+    assert w.log_frame(0, T0 + 10, noise_image(7))  # ends the chunk: the write fails
+    assert w.wait_drained(10.0)  # it did not: an item was never counted
+    w.stop()
+    s = w.stats
+    frames_account(s, 3)
+    frames = sum(1 for _ in read_log(tmp_path, {"/camera0/image"}))
+    messages = sum(1 for _ in read_log(tmp_path, {"/tcm/result"}))
+    assert (s.frames_logged, s.messages_logged) == (frames, messages), s  # what the file holds
+    assert s.frames_dropped_disk == 3 - frames >= 2 and s.frames_dropped_error == 0, s
+    assert s.messages_dropped_disk == 2 - messages, s
+    assert s.state == "off" and s.write_errors >= 1

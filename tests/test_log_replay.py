@@ -23,6 +23,7 @@ import json
 import math
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -291,3 +292,30 @@ def test_logs_written_in_frame_counts_replay_in_seconds() -> None:
     assert old["pipeline"]["classifier"]["frame_interval"] == 25  # the input is not changed
     new, same = from_frame_counts(doc, {"TCM_HOLD_S": 0.2})
     assert new == doc and same == {"TCM_HOLD_S": 0.2}  # today's keys pass through
+
+
+def test_a_jpeg_log_fails_the_check_and_says_why(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 24 §4: ``replay LOG --check`` on a default (JPEG) log failed with "447
+    frame(s) differ" and no reason. Replay runs on the decoded JPEG, not on the frames the
+    daemon processed: say so, and how to log PNG."""
+    from tcm_companion import cli
+    from tcm_companion.sitl.mock import run_sitl_virtual
+
+    report = run_sitl_virtual(
+        AppConfig(), duration_s=3.0, state_dir=str(tmp_path / "s"), log_dir=str(tmp_path / "l")
+    )
+    assert report.ok and AppConfig().logging.image_format == "jpeg"
+    capsys.readouterr()
+    rc = cli.main(["replay", str(tmp_path / "l"), "--results", str(tmp_path / "r.csv"), "--check"])
+    out, err = capsys.readouterr()
+    assert rc == 1, (out, err)
+    (line,) = [x for x in err.splitlines() if x.startswith("check failed: ")]
+    assert re.match(r"check failed: \d+ frame\(s\) differ from the flight: the log's frames are"
+                    r" JPEG \(lossy\)", line), line  # fmt: skip
+    assert '[logging] image_format = "png"' in line and "--set logging.image_format=png" in line
+    # the same without --check, as a note
+    rc = cli.main(["replay", str(tmp_path / "l"), "--results", str(tmp_path / "r.csv"), "--force"])
+    out, err = capsys.readouterr()
+    assert rc == 0 and "note: " in err and "JPEG (lossy)" in err, (out, err)

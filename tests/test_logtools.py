@@ -293,6 +293,42 @@ def test_scenario_to_log_and_back(flight: Flight, exported: Path, tmp_path: Path
     np.testing.assert_array_equal(sc.read_frame(5), flight.frames[5][2])
 
 
+def test_a_log_imported_with_results_replays_to_its_results(exported: Path, tmp_path: Path) -> None:
+    """Issue 24 §4: a log written by ``import --results`` failed ``replay --check`` (150
+    frames differ, 2.3e-04). Its results were computed with the telemetry received up to
+    ``attitude_wait_max_us`` after each frame, which the log held after the frame's
+    result, so replay processed each frame with less telemetry; and neither the clock
+    offset nor the configuration was recorded. Now process replay reproduces them, also
+    for a configuration other than the defaults, and they are the scenario's replay."""
+    from dataclasses import replace
+
+    from tcm_companion.replay.log import compare, replay_log
+
+    base = AppConfig()
+    other = replace(
+        base,
+        pipeline=replace(
+            base.pipeline, classifier=replace(base.pipeline.classifier, tcm_threshold=0.05)
+        ),
+    )
+    scenario = load_scenario(exported)
+    for name, config in (("default", None), ("other", other)):
+        log_path = tmp_path / f"{name}.mcap"
+        scenario_to_log(exported, log_path, results=True, config=config)
+        frames = list(replay_log(log_path))
+        assert len(frames) == scenario.n_frames
+        assert [d for f in frames for d in compare(f)] == [], name
+        assert any(o["disparity"] is not None for f in frames for o in f.logged["objects"])
+        # ... and the logged results are those of the scenario's replay
+        want = list(run_replay(scenario, config or base))
+        assert [[o.state for o in r.objects] for r in want] == [
+            [o["state"] for o in f.logged["objects"]] for f in frames
+        ]
+    meta = reader.read_metadata(tmp_path / "other.mcap")
+    assert "tcm_threshold = 0.05" in meta["config"]
+    assert json.loads(meta["params"])["TCM_THRESH"] == 0.05
+
+
 def test_scenario_to_log_refuses_bad_input(exported: Path, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="image_format"):
         scenario_to_log(exported, tmp_path / "x.mcap", image_format="bmp")

@@ -85,11 +85,12 @@ def _error_message(exc: BaseException) -> str | None:
         return f"config error: {exc}"
     if isinstance(exc, OSError):
         return f"error: {exc}"
+    from ..flightlog.reader import FlightSelectionError
     from ..io.scenario import ScenarioError
     from ..logtools.convert import LogConversionError
     from ..replay.log import LogReplayError
 
-    if isinstance(exc, ScenarioError | LogConversionError | LogReplayError):
+    if isinstance(exc, ScenarioError | LogConversionError | LogReplayError | FlightSelectionError):
         return f"error: {exc}"
     return None
 

@@ -187,6 +187,12 @@ def _number(text: str, kind: Any, what: str) -> Any:
         raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
 
 
+FLIGHT_HELP = (
+    "a log directory of several flights: which one (its id or a unique prefix of it, as"
+    " the error listing them shows; latest: the newest)"
+)
+
+
 def is_log(path: str) -> bool:
     """A flight log: an ``.mcap`` file or a directory of ``tcm-*.mcap`` parts."""
     p = Path(path)

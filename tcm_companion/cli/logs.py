@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import (
+    FLIGHT_HELP,
     FORCE_HELP,
     TOOLS_HINT,
     TolerantFrames,
@@ -27,7 +28,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     check_log_path(Path(args.log))  # a missing log is named as such, not as an output
     with atomic_path(args.scenario, kind=SCENARIO_DIR, force=args.force, inputs=[args.log]) as tmp:
-        summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id)
+        summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id, flight=args.flight)
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"{args.log} -> {args.scenario}: {summary.frames} frames")
@@ -70,7 +71,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         files=[(f"{name}.png", PNG_FILE) for name in PLOT_NAMES],
     )
     if log:
-        paths = plot_log(args.source, args.out)
+        paths = plot_log(args.source, args.out, flight=args.flight)
     else:
         from ..io.scenario import load_scenario
 
@@ -107,6 +108,7 @@ def add_parsers(sub: Any) -> None:
         metavar="N",
         help="which camera's frames to export (default 0)",
     )
+    p.add_argument("--flight", metavar="ID", default=None, help=FLIGHT_HELP)
     p.set_defaults(func=cmd_export)
 
     p = add_command(
@@ -144,4 +146,5 @@ def add_parsers(sub: Any) -> None:
     p.add_argument(
         "--out", default="out/plots", metavar="DIR", help="folder for the PNGs (default out/plots)"
     )
+    p.add_argument("--flight", metavar="ID", default=None, help="flight log: " + FLIGHT_HELP)
     p.set_defaults(func=cmd_plot)

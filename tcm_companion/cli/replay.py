@@ -7,6 +7,7 @@ import sys
 from typing import Any
 
 from .common import (
+    FLIGHT_HELP,
     FORCE_HELP,
     METHODS,
     TolerantFrames,
@@ -34,21 +35,28 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
 
     A truncated or damaged log replays as far as it is readable and says so (stderr, and
     in the summary line); ``--check`` fails on it, as on a frame that differs and on a log
-    with no frame to compare."""
-    from ..flightlog.reader import LogReport
+    with no frame to compare. Processed frames the log lacks (dropped by the writer) are
+    counted and skipped; the frames after the first of them are replayed but not compared
+    (replay.log's docstring), and ``--check`` passes on what it could compare."""
+    from ..flightlog.reader import LogReport, read_metadata
     from ..io.outputs import RESULTS_CSV, atomic_text
     from ..io.results import ResultsWriter
-    from ..replay.log import ROUNDING_REL_TOL, compare, replay_log
+    from ..replay.log import ROUNDING_REL_TOL, MissingFrame, compare, replay_log
 
-    rows = mismatched = rounding = beyond = frames = 0
+    rows = mismatched = rounding = beyond = frames = after_gap = after_same = 0
     diffs: list[str] = []
     report = LogReport()
+    missing: list[MissingFrame] = []
     with atomic_text(args.results, kind=RESULTS_CSV, force=args.force, inputs=_inputs(args)) as fh:
         writer = ResultsWriter(fh)
-        for frame in replay_log(args.scenario, args.camera_id, report):
+        for frame in replay_log(args.scenario, args.camera_id, report, args.flight, missing):
             writer.write(frame.result)
             frames += 1
             d = compare(frame)
+            if frame.after_gap:  # not comparable: its pipeline lacked a frame the flight's had
+                after_gap += 1
+                after_same += not d
+                continue
             if d:
                 mismatched += 1
                 rounding += not compare(frame, rel_tol=ROUNDING_REL_TOL)
@@ -56,10 +64,12 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
                 diffs.extend(d)
         rows = writer.rows
     problems = report.problems()
-    for line in problems:
+    for line in report.notes + problems:
         print(f"warning: {line}", file=sys.stderr)
     incomplete = ""
-    if problems:
+    if problems and not report.damaged:  # the flight's own: a part missing, ...
+        incomplete = f"; INCOMPLETE: {len(problems)} problem(s) with its parts (see the warnings)"
+    elif problems:
         if len(report.parts) > 1:
             which = ", ".join(
                 f"part {k + 1} ({p.path.name}) {p.kind}"
@@ -85,25 +95,70 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
         if rounding
         else ""
     )
+    holes = ""
+    if missing:
+        holes = "; " + _missing_text(missing, after_gap, after_same)
+    compared = frames - after_gap
     print(
         f"{args.scenario}: {frames} frames replayed, {rows} rows -> {args.results}; "
-        f"{frames - mismatched} identical to the flight, {mismatched} differ{how}{incomplete}"
+        f"{compared - mismatched} identical to the flight, {mismatched} differ{how}{holes}"
+        f"{incomplete}"
     )
     for line in diffs[:20]:
         print(f"  {line}")
+    jpeg = ""
+    if mismatched and read_metadata(args.scenario, args.flight).get("image_format") == "jpeg":
+        jpeg = (
+            ": the log's frames are JPEG (lossy), and replay runs on the decoded images, not"
+            " on the frames the daemon processed, so it cannot give the flight's results"
+            ' exactly; log PNG frames for an exact replay: [logging] image_format = "png"'
+            " (or --set logging.image_format=png)"
+        )
+        print(f"note: {mismatched} frame(s) differ{jpeg}", file=sys.stderr)
     if not args.check:
         return 0
     failed = []
     if beyond:
         within = f" beyond {args.rel_tol:g} relative" if args.rel_tol else ""
-        failed.append(f"{beyond} frame(s) differ from the flight{within}")
+        failed.append(f"{beyond} frame(s) differ from the flight{within}{jpeg}")
     if problems:
         failed.append("the log is not whole (see the warnings above)")
     if not frames:
         failed.append(f"no processed frame of camera {args.camera_id} to compare")
+    elif not compared:
+        failed.append("no frame could be compared (the log lacks the first processed frame)")
     for why in failed:
         print(f"check failed: {why}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def _missing_text(missing: list[Any], after_gap: int, after_same: int) -> str:
+    """The summary's words for what the log lacks, and for the frames after the first hole."""
+
+    def why(kind: str) -> str:
+        whys = sorted({m.why for m in missing if m.kind == kind})
+        return " / ".join("dropped by the writer" if w == "not logged" else w for w in whys)
+
+    def count(kind: str) -> int:
+        return sum(m.count for m in missing if m.kind == kind)
+
+    holes = []
+    if count("image"):
+        holes.append(
+            f"{count('image')} processed frame(s) whose image is not in the log"
+            f" ({why('image')}), not replayed"
+        )
+    if count("result"):
+        holes.append(f"{count('result')} whose result is not ({why('result')}), not replayed")
+    if count("messages"):
+        holes.append(
+            f"{count('messages')} other message(s) the writer dropped (MAVLink, box feed, ...:"
+            " the log's health records count them)"
+        )
+    return (
+        f"{'; '.join(holes)}; {after_gap} frame(s) after the first hole replayed without what"
+        f" it lacks, not compared ({after_same} identical anyway)"
+    )
 
 
 def _unknown_rows(previous: Any, frame_index: int, t_us: int) -> Any:
@@ -270,6 +325,7 @@ def add_parsers(sub: Any) -> None:
         metavar="N",
         help="flight log: which camera (default 0)",
     )
+    p.add_argument("--flight", metavar="ID", default=None, help="flight log: " + FLIGHT_HELP)
     p.add_argument("--results", required=True, metavar="FILE", help="results CSV to write")
     p.add_argument("--force", action="store_true", help=FORCE_HELP)
     p.add_argument(

@@ -63,6 +63,7 @@ class FlightLog:
             "frames_logged": st.frames_logged,
             "frames_dropped_queue": st.frames_dropped_queue,
             "frames_dropped_disk": st.frames_dropped_disk,
+            "frames_dropped_error": st.frames_dropped_error,
             "messages_dropped_queue": st.messages_dropped_queue,
             "queue_depth": st.queue_depth,
             "bytes_written": st.bytes_written,

@@ -33,17 +33,26 @@ the seeking reader, which needs the footer, recover nothing from a killed file;
 ``tests/test_flightlog.py`` shows both.) Power loss is a different matter: only the file
 close on rotation/stop calls ``fsync``.
 
-*Files.* ``tcm-YYYYmmdd-HHMMSS-NNN.mcap`` (UTC wall time of :meth:`FlightLogWriter.start`,
-part counter ``NNN``): a new part when the current one exceeds ``rotate_size_mb`` (MB =
-10⁶ bytes) or ``rotate_interval_s``; every part starts with the ``"tcm-companion"``
-metadata record, and a closed part has the full MCAP summary (index, statistics), so each
-part opens on its own in Foxglove or ``mcap info``.
+*Files.* ``tcm-YYYYmmdd-HHMMSS-FLIGHTID-NNN.mcap`` (UTC wall time of
+:meth:`FlightLogWriter.start`, the flight's id, part counter ``NNN``): a new part when the
+current one exceeds ``rotate_size_mb`` (MB = 10⁶ bytes) or ``rotate_interval_s``; every
+part starts with the ``"tcm-companion"`` metadata record (with ``flight_id`` and the
+part's number ``log_part``), and a closed part has the full MCAP summary (index,
+statistics), so each part opens on its own in Foxglove or ``mcap info``. The flight id
+(12 hex digits) is random unless given (a deterministic run derives its own:
+:mod:`tcm_companion.logsetup`): a reader joins the parts of one flight, never two
+flights that share a directory (:func:`~.reader.select_flight`).
 
 *Disk.* Below ``min_free_mb`` of free space (checked at most once a second, in the writer
 thread) frames and annotations are dropped (counted); MAVLink and JSON continue. A write
 error (ENOSPC, EIO, the directory or file removed) never ends the thread: it is counted,
 reported once through ``on_event``, the state becomes ``"fault"`` (items are dropped and
-counted) and a new part is tried every ``retry_interval_s``.
+counted) and a new part is tried every ``retry_interval_s`` (after a full disk, once
+there is room for a part's start and a chunk). The part that failed stays readable up to
+its last chunk that reached the OS; what was counted as logged but had not (the open
+chunk) is counted again as dropped: ``dropped_disk`` for a full disk (ENOSPC, EDQUOT),
+like the items dropped while it stays full, ``dropped_error`` for other errors. A part
+that never got a message out, and a part start that failed, leave no file.
 
 *Events.* ``on_event(severity, text)`` is called from the writer thread: it must be
 thread-safe and quick (e.g. ``loop.call_soon_threadsafe``); its exceptions are swallowed.
@@ -98,11 +107,13 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 from .. import __version__
 from . import topics
 from .reader import (
+    FLIGHT_ID_RE,
     METADATA_NAME,
     LogRecord,
     decode_image,
     decode_json,
     log_files,
+    new_flight_id,
     part_name,
     read_log,
     read_metadata,
@@ -388,6 +399,7 @@ class FlightLogWriter:
     the records' own time stamps instead of the wall clock's (the same crash-safety
     bound, in the log's time); a producer waits for room instead of dropping; parts are
     named after ``session`` (e.g. the simulation's start time) instead of the wall clock.
+    ``flight_id`` (12 hex digits; default random) is the flight's id.
     """
 
     def __init__(
@@ -402,10 +414,15 @@ class FlightLogWriter:
         retry_interval_s: float = 3.0,
         deterministic: bool = False,
         session: str | None = None,
+        flight_id: str | None = None,
     ) -> None:
         self.config = config
         self.deterministic = deterministic
         self._session_name = session
+        if flight_id is not None and not FLIGHT_ID_RE.match(flight_id):
+            raise ValueError(f"flight_id must be 12 hex digits, got {flight_id!r}")
+        #: This flight's id: in every part's metadata and file name.
+        self.flight_id = flight_id if flight_id is not None else new_flight_id()
         self.directory = Path(directory)
         if wall_minus_mono_ns is None:
             wall_minus_mono_ns = time.time_ns() - time.monotonic_ns()
@@ -455,9 +472,15 @@ class FlightLogWriter:
         self._file_opened_at = 0.0
         self._dirty = False
         self._fault = False
+        self._fault_disk_full = False  # the fault is a full disk (ENOSPC, EDQUOT)
         self._fault_reported = False
         self._encode_error_reported = False
         self._disk_low = False
+        # Counted as logged but not yet pushed to the OS (the open chunk): a failed write
+        # loses them, and they are counted again as dropped (see _enter_fault).
+        self._pending = [0, 0]  # frames, other messages
+        self._written_pos = 0  # the file position last pushed to the OS
+        self._part_flushed = False  # a message of the open part has reached the OS
         self._next_free_check = 0.0
         self._next_retry = 0.0
         # deterministic mode: the records' time of the next flush and of the part's start
@@ -475,6 +498,7 @@ class FlightLogWriter:
         self._started = True
         meta = {str(k): _metadata_value(v) for k, v in metadata.items()}
         meta.update(
+            flight_id=self.flight_id,
             log_format=LOG_FORMAT,
             wall_minus_mono_ns=str(self.wall_minus_mono_ns),
             image_format=self.config.image_format,
@@ -704,7 +728,7 @@ class FlightLogWriter:
             self._count(kind, "dropped_disk")
             return
         if self._mcap is None:
-            self._count(kind, "dropped_error")
+            self._count(kind, "dropped_disk" if self._fault_disk_full else "dropped_error")
             return
         try:
             topic, channel_kind, t_us, payload = self._encode(item)
@@ -720,15 +744,33 @@ class FlightLogWriter:
                 self._encode_error_reported = True
                 self._event("warning", f"log: cannot encode {_KIND_NAMES[kind]}: {e}")
             return
+        counted = False
         try:
             self._write(topic, channel_kind, log_ns, publish_ns, payload)
+            with self._lock:
+                self._counts.count(kind, "logged")
+            self._pending[kind != _FRAME] += 1
+            counted = True  # from here on a failure counts it again, as pending
+            assert self._fh is not None
+            pos = self._fh.tell()
+            if pos != self._written_pos:  # mcap ended a chunk: push it to the OS now, so
+                self._fh.flush()  # that what is counted as logged is what the file holds
+                self._written(pos)
         except Exception as e:
-            self._count(kind, "dropped_error")
+            if not counted:  # the write itself failed
+                self._count(kind, _lost_outcome(e))
             self._enter_fault(e, time.monotonic())
             return
-        self._count(kind, "logged")
-        if self._fh is not None and self._fh.tell() >= self._rotate_bytes:
+        if pos >= self._rotate_bytes:
             self._rotate(time.monotonic())
+
+    def _written(self, pos: int) -> None:
+        """Everything up to file position ``pos`` reached the OS: the pending items are
+        in the file."""
+        self._written_pos = pos
+        if self._pending != [0, 0]:
+            self._part_flushed = True
+        self._pending = [0, 0]
 
     def _encode(self, item: _Item) -> tuple[str, str, int, bytes]:
         """(topic, channel kind, t_us, payload) of a queued item."""
@@ -861,6 +903,7 @@ class FlightLogWriter:
             _flush_writer(self._mcap, self._fh)
             self._dirty = False
             self._bytes_current = self._fh.tell()
+            self._written(self._bytes_current)
         except Exception as e:
             self._enter_fault(e, now)
 
@@ -874,6 +917,9 @@ class FlightLogWriter:
             self._enter_fault(e, now)
 
     def _retry(self, now: float) -> None:
+        if self._fault_disk_full and not self._room_for_a_part():
+            self._next_retry = now + self._retry_interval_s
+            return
         try:
             self._open_file()
         except Exception as e:
@@ -883,19 +929,28 @@ class FlightLogWriter:
             self._next_retry = now + self._retry_interval_s
             return
         self._fault = False
+        self._fault_disk_full = False
         self._fault_reported = False
         self._event("info", f"log: recording again ({self._counts.files[-1].name})")
+
+    def _room_for_a_part(self) -> bool:
+        """After a full disk: free space for a part's start and a chunk (unknown: try)."""
+        try:
+            free = int(self._free_bytes(self.directory))
+        except Exception:
+            return True
+        return free >= self.config.chunk_size_bytes + 65_536
 
     def _open_file(self) -> None:
         """Open the next part: header, metadata record, flushed; raises on failure."""
         self.directory.mkdir(parents=True, exist_ok=True)
         for _ in range(100_000):
-            path = self.directory / part_name(self._session, self._counter)
-            self._counter += 1
+            path = self.directory / part_name(self._session, self._counter, self.flight_id)
             try:
                 fh = self._open_stream(path)
                 break
             except FileExistsError:
+                self._counter += 1
                 continue
         else:  # pragma: no cover
             raise FileExistsError(errno.EEXIST, "no free log file name", str(self.directory))
@@ -911,10 +966,16 @@ class FlightLogWriter:
         except BaseException:
             with contextlib.suppress(Exception):
                 fh.close()
+            with contextlib.suppress(OSError):
+                path.unlink()  # ours (created here): no empty or partial part is left
             raise
+        self._counter += 1
         self._fh, self._mcap = fh, writer
         self._channels, self._schemas, self._sequence = {}, {}, {}
         self._dirty = False
+        self._pending = [0, 0]
+        self._written_pos = fh.tell()
+        self._part_flushed = False
         self._file_opened_at = time.monotonic()
         with self._lock:
             self._counts.files.append(path)
@@ -939,21 +1000,45 @@ class FlightLogWriter:
         except Exception as e:
             self._enter_fault(e, time.monotonic())
             return
+        self._pending = [0, 0]
         self._fh = self._mcap = None
         with self._lock:
             self._bytes_closed += size
             self._bytes_current = 0
 
     def _enter_fault(self, exc: BaseException, now: float) -> None:
+        # What was counted as logged but had not reached the OS is lost with the part's
+        # tail: counted again, as dropped (disk on a full disk, else error).
+        lost = _lost_outcome(exc)
+        frames, messages = self._pending
+        self._pending = [0, 0]
+        fh = self._fh
+        # A part that never got a message out holds only its start: remove it (a full
+        # disk would otherwise leave one such part per retry).
+        useless = fh is not None and not self._part_flushed
         with self._lock:
-            self._counts.write_errors += 1
-            self._bytes_closed += self._bytes_current
+            c = self._counts
+            c.write_errors += 1
+            c.frames_logged -= frames
+            c.messages_logged -= messages
+            setattr(c, f"frames_{lost}", getattr(c, f"frames_{lost}") + frames)
+            setattr(c, f"messages_{lost}", getattr(c, f"messages_{lost}") + messages)
+            if useless and c.files:
+                self._counter -= 1
+                gone = c.files.pop()
+            else:
+                self._bytes_closed += self._bytes_current
+                gone = None
             self._bytes_current = 0
-        if self._fh is not None:
+        if fh is not None:
             with contextlib.suppress(Exception):
-                self._fh.close()
+                fh.close()
+        if gone is not None:
+            with contextlib.suppress(OSError):
+                gone.unlink()
         self._fh = self._mcap = None
         self._fault = True
+        self._fault_disk_full = lost == "dropped_disk"
         self._next_retry = now + self._retry_interval_s
         log.warning("flight log write failed: %s", exc)
         if not self._fault_reported:
@@ -968,6 +1053,14 @@ class FlightLogWriter:
             self._on_event(severity, text)
         except Exception:
             log.exception("flight log on_event callback failed")
+
+
+def _lost_outcome(exc: BaseException) -> Outcome:
+    """How an item lost to the write error ``exc`` is counted: a full disk (ENOSPC, or
+    a quota: EDQUOT) is ``dropped_disk``, like the free-space floor; anything else
+    ``dropped_error``."""
+    full = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    return "dropped_disk" if full else "dropped_error"
 
 
 _KIND_NAMES = {_FRAME: "frame", _ANNOT: "annotations", _MAV: "MAVLink", _JSON: "JSON"}

@@ -153,12 +153,20 @@ def split_mavlink(
         yield t, bytes(msg.get_msgbuf())
 
 
-def check_log_path(log_path: Path) -> None:
-    """A log file, or a directory holding rotated parts; else an error naming it."""
+def check_log_path(log_path: Path, flight: str | None = None) -> dict[str, str]:
+    """A log file, or a directory holding rotated parts, with a readable metadata record
+    (of the flight ``flight`` picks: :func:`~tcm_companion.flightlog.reader.select_flight`);
+    else an error naming it. Returns the metadata."""
     if not log_path.exists():
         raise LogConversionError(f"{log_path}: no such log file or directory")
     if log_path.is_dir() and not reader.log_files(log_path):
         raise LogConversionError(f"{log_path}: directory holds no flight log (tcm-*.mcap)")
+    metadata = reader.read_metadata(log_path, flight)
+    if not metadata:
+        damaged = reader.check_log(log_path, flight).problems()
+        why = "; ".join(damaged) if damaged else "not a flight log?"
+        raise LogConversionError(f"{log_path}: no tcm-companion metadata record readable: {why}")
+    return metadata
 
 
 def _wall_minus_mono_us(metadata: dict[str, str], offsets_ns: list[int]) -> int:
@@ -195,6 +203,7 @@ def log_to_scenario(
     camera_id: int = 0,
     *,
     name: str | None = None,
+    flight: str | None = None,
 ) -> ExportSummary:
     """Write the flight log ``log_path`` (file or rotated directory) as a scenario.
 
@@ -202,14 +211,15 @@ def log_to_scenario(
     ``camera{camera_id}``), ``frames/NNNNNN.png`` with ``frames.csv`` (capture times) from
     ``/camera{camera_id}/image``, and ``telemetry.tlog`` from ``/mavlink/in`` (each MAVLink
     frame with its receive time). Raises :class:`LogConversionError` naming the log when
-    it lacks the camera model, the camera's images or the autopilot's attitude.
+    it lacks the camera model, the camera's images or the autopilot's attitude. A
+    directory of several flights exports the one ``flight`` picks (else
+    :class:`~tcm_companion.flightlog.reader.FlightSelectionError`, listing them).
     """
     log_path = Path(log_path)
     out = Path(out_dir)
-    check_log_path(log_path)
+    metadata = check_log_path(log_path, flight)
     if out.resolve() == log_path.resolve():
         raise LogConversionError(f"{out}: the scenario directory cannot be the log itself")
-    metadata = reader.read_metadata(log_path)
     camera = camera_from_metadata(metadata, camera_id, log_path)
 
     image_topic = topics.camera_image(camera_id)
@@ -221,7 +231,7 @@ def log_to_scenario(
     offsets_ns: list[int] = []
     skipped = 0
     log_report = reader.LogReport()
-    for rec in reader.read_log(log_path, [image_topic, topics.MAVLINK_IN], log_report):
+    for rec in reader.read_log(log_path, [image_topic, topics.MAVLINK_IN], log_report, flight):
         if rec.topic == topics.MAVLINK_IN:
             chunks.append((rec.publish_time_ns // 1000, bytes(rec.data)))
             offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
@@ -318,6 +328,7 @@ def log_to_scenario(
         )
     # a truncated or damaged log: the scenario holds only what was readable; say so
     summary.warnings += [f"{p} (exported what was readable)" for p in log_report.problems()]
+    summary.warnings += log_report.notes
     for w in summary.warnings:
         log.warning("%s", w)
     return summary
@@ -355,6 +366,15 @@ def scenario_to_log(
     None) and each frame's ``/tcm/result`` and ``/camera0/annotations`` are logged too.
     Times are logged as they are (wall minus monotonic = 0), so converting the log back
     gives the same times.
+
+    The results are logged so that process replay (``replay LOG --check``) reproduces
+    them, as it does a flight's: the configuration and the parameters they were computed
+    with go to the metadata (the pipeline runs on the configuration with the parameters
+    applied, as the daemon does); a frame sees the telemetry received up to ``[daemon]
+    attitude_wait_max_us`` after its capture (:func:`~tcm_companion.replay.scenario.run_replay`),
+    so that telemetry is logged before the frame's result, which is logged when the frame
+    was processed (capture + the wait); and the result records the clock offset the
+    pipeline used.
     """
     scenario_dir = Path(scenario_dir)
     log_path = Path(log_path)
@@ -374,16 +394,22 @@ def scenario_to_log(
     pipeline = None
     threshold = 0.0
     wait_us = 0
+    recorded: dict[str, str] = {}
     if results:
-        from ..config import AppConfig
+        from ..config import AppConfig, config_to_toml
         from ..core.pipeline import Pipeline
         from ..core.telemetry import TelemetryBuffer
+        from ..mavlink.params import ParamTable, config_with_params, params_from_config
         from ..replay.scenario import telemetry_wait_us
 
         cfg = config if config is not None else AppConfig()
+        # the daemon's start: the parameters from the configuration, applied to it
+        params = ParamTable(defaults=params_from_config(cfg.pipeline)).values
+        pipe_cfg = config_with_params(cfg.pipeline, params)
+        recorded = {"config": config_to_toml(cfg), "params": json.dumps(params, sort_keys=True)}
         buffer = TelemetryBuffer()
-        pipeline = Pipeline(scenario.camera, cfg.pipeline, telemetry=buffer)
-        threshold = float(cfg.pipeline.classifier.tcm_threshold)
+        pipeline = Pipeline(scenario.camera, pipe_cfg, telemetry=buffer)
+        threshold = float(pipe_cfg.classifier.tcm_threshold)
         wait_us = telemetry_wait_us(cfg)
         telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
 
@@ -407,6 +433,7 @@ def scenario_to_log(
                 "source": f"tcm-scenario {scenario_dir}",
                 "scenario_name": scenario.name,
                 "description": scenario.description,
+                **recorded,
             }
         )
         try:
@@ -419,14 +446,22 @@ def scenario_to_log(
                     j += 1
                 _retry(f"frame {i}", writer.log_frame, 0, t_us, image)
                 if pipeline is not None:
+                    t_done = t_us + wait_us  # processed with what had arrived by then
+                    while j < len(mavlink) and mavlink[j][0] <= t_done:
+                        t_m, frame = mavlink[j]
+                        _retry("a MAVLink message", writer.log_mavlink, "in", t_m, frame)
+                        j += 1
                     start = k
-                    while k < len(telemetry) and telemetry[k].recv_us <= t_us + wait_us:
+                    while k < len(telemetry) and telemetry[k].recv_us <= t_done:
                         k += 1
                     buffer.extend(telemetry[start:k])
+                    offset = buffer.clock.offset_us  # what the step places attitude with
                     res = pipeline.step(image, t_us)
-                    doc = replay_result_doc(res, threshold)
+                    doc = replay_result_doc(
+                        res, threshold, clock_offset_us=offset, t_process_us=t_done
+                    )
                     circles = annotation_circles(res, scenario.camera)
-                    _retry(f"result {i}", writer.log_json, topics.RESULT, t_us, doc)
+                    _retry(f"result {i}", writer.log_json, topics.RESULT, t_done, doc)
                     _retry(f"annotations {i}", writer.log_annotations, 0, t_us, circles)
                     n_results += 1
             for t_m, frame in mavlink[j:]:
@@ -455,15 +490,24 @@ def scenario_to_log(
     )
 
 
-def replay_result_doc(result: Any, threshold: float, camera_id: int = 0) -> dict[str, Any]:
+def replay_result_doc(
+    result: Any,
+    threshold: float,
+    camera_id: int = 0,
+    *,
+    clock_offset_us: float = float("nan"),
+    t_process_us: int | None = None,
+) -> dict[str, Any]:
     """The ``/tcm/result`` document of a replayed :class:`FrameResult` (no latency: the
-    frame was not captured live; processing time = capture time)."""
+    frame was not captured live; processing time: ``t_process_us``, default the capture
+    time; ``clock_offset_us``: the boot-to-companion offset the pipeline used, NaN for
+    unknown)."""
     return result_doc(
         camera_id,
         result,
         threshold=threshold,
-        t_process_us=int(result.t_us),
+        t_process_us=int(result.t_us) if t_process_us is None else int(t_process_us),
         override="",
-        clock_offset_us=float("nan"),
+        clock_offset_us=clock_offset_us,
         latency_ms=None,
     )

@@ -111,17 +111,18 @@ class PlotData:
 # --------------------------------------------------------------------------------------
 # Loading
 # --------------------------------------------------------------------------------------
-def load_log_data(path: str | Path) -> PlotData:
-    """Read what the plots need from a flight log (file or rotated directory)."""
+def load_log_data(path: str | Path, flight: str | None = None) -> PlotData:
+    """Read what the plots need from a flight log (file or rotated directory; ``flight``
+    picks one of a directory's flights)."""
     from ..flightlog import reader
     from .convert import check_log_path
 
     path = Path(path)
-    check_log_path(path)
+    check_log_path(path, flight)
     data = PlotData(source=path.name)
     chunks: list[tuple[int, bytes]] = []
     wanted = [topics.RESULT, topics.HEALTH, topics.MAVLINK_IN]
-    for rec in reader.read_log(path, topics=wanted):
+    for rec in reader.read_log(path, topics=wanted, flight=flight):
         t_us = rec.publish_time_ns // 1000
         if rec.topic == topics.MAVLINK_IN:
             chunks.append((t_us, bytes(rec.data)))
@@ -218,9 +219,10 @@ def load_scenario_data(scenario: Any, config: Any | None = None) -> PlotData:
 # --------------------------------------------------------------------------------------
 # Entry points
 # --------------------------------------------------------------------------------------
-def plot_log(path: str | Path, out_dir: str | Path) -> PlotFiles:
-    """Plot a flight log (``.mcap`` file or directory of rotated files) into ``out_dir``."""
-    return plot_data(load_log_data(path), out_dir)
+def plot_log(path: str | Path, out_dir: str | Path, flight: str | None = None) -> PlotFiles:
+    """Plot a flight log (``.mcap`` file or directory of rotated files; ``flight`` picks
+    one of a directory's flights) into ``out_dir``."""
+    return plot_data(load_log_data(path, flight), out_dir)
 
 
 def plot_scenario(scenario: Any, out_dir: str | Path, config: Any | None = None) -> PlotFiles:

@@ -22,6 +22,19 @@ bit-exact by default; ``rel_tol`` accepts such rounding differences in the dispa
 A truncated or damaged log (a killed daemon, a copy taken while it was written) replays as
 far as it is readable; what was not is in the :class:`~tcm_companion.flightlog.reader.LogReport`
 given to :func:`replay_log` (``replay --check`` fails on it).
+
+A log with holes replays too. The writer drops frames by design (a full queue, the
+disk's free-space floor, a full disk; counted in the health records), and a damaged
+part loses its tail: a processed frame whose image is not in the log cannot be
+recomputed (:class:`MissingFrame`), nor one whose result is not (a jump in the logged
+``frame_index``). Replay skips it, counts it and goes on, but from then on its pipeline
+lacks a frame the daemon's had (flow, tracks and their histories differ), so the frames
+after the first hole are recomputed without being comparable to the flight's
+(:attr:`ReplayedFrame.after_gap`): ``replay --check`` compares the frames before it.
+Other messages the writer dropped (MAVLink bytes, box-feed datagrams: inputs replay then
+lacks) are told by the health records' log counters, once a second: the frames processed
+after the last health record before the count went up are after a hole too (replay
+holds each frame back until the next health record, or 5 s of the log, to know).
 """
 
 from __future__ import annotations
@@ -57,14 +70,45 @@ class LogReplayError(ValueError):
 class ReplayedFrame:
     logged: dict[str, Any]  # the /tcm/result document written in flight
     result: FrameResult  # the same frame, recomputed
+    # A frame the daemon processed before this one could not be replayed (its image or
+    # its result is not in the log): this one's pipeline state is not the flight's.
+    after_gap: bool = False
 
 
-def _metadata(path: Path) -> dict[str, str]:
+@dataclass(frozen=True)
+class MissingFrame:
+    """What replay lacks, by ``kind``: a processed frame's image (``"image"``;
+    ``t_capture_us`` says which), the results of ``count`` processed frames (``"result"``,
+    told by a jump in the logged ``frame_index``; ``t_capture_us`` is then the next logged
+    frame's), or ``count`` other messages the writer dropped (``"messages"``: MAVLink,
+    box-feed datagrams...; told by the health records; ``t_capture_us`` is then the time
+    of the health record before them)."""
+
+    t_capture_us: int
+    why: str  # "not logged" (dropped by the writer) or "lost with a damaged part"
+    count: int = 1
+    kind: str = "image"  # "image", "result" or "messages"
+
+
+#: How long replay holds frames back waiting for a health record (µs of the log).
+_HEALTH_WAIT_US = 5_000_000
+
+
+def _log_drops(doc: dict[str, Any]) -> int | None:
+    """Messages (not frames) the writer had dropped, by a health record's log counters."""
+    lg = doc.get("log")
+    if not isinstance(lg, dict):
+        return None
+    keys = ("messages_dropped_queue", "messages_dropped_disk", "messages_dropped_error")
+    return sum(int(v) for k in keys if isinstance(v := lg.get(k), int))
+
+
+def _metadata(path: Path, flight: str | None = None) -> dict[str, str]:
     from ..flightlog.reader import check_log, read_metadata
 
-    meta = read_metadata(path)
+    meta = read_metadata(path, flight)
     if not meta:
-        damaged = check_log(path).problems()
+        damaged = check_log(path, flight).problems()
         if damaged:  # cut or damaged before (or inside) its first record
             raise LogReplayError(
                 f"{path}: no tcm-companion metadata record readable: " + "; ".join(damaged)
@@ -111,11 +155,11 @@ def from_frame_counts(
     return out, new_params
 
 
-def log_config(path: str | Path) -> tuple[AppConfig, dict[str, float]]:
-    """The configuration and the parameter values in force when the log started (a log
-    written before the time base moved to seconds is read in today's keys; deprecated
-    keys are dropped)."""
-    meta = _metadata(Path(path))
+def log_config(path: str | Path, flight: str | None = None) -> tuple[AppConfig, dict[str, float]]:
+    """The configuration and the parameter values in force when the log (``flight``
+    of a directory of several) started (a log written before the time base moved to
+    seconds is read in today's keys; deprecated keys are dropped)."""
+    meta = _metadata(Path(path), flight)
     try:
         doc = tomllib.loads(meta.get("config", ""))
     except tomllib.TOMLDecodeError as exc:
@@ -145,20 +189,28 @@ def _cameras(meta: dict[str, str], where: Path) -> tuple[list[CameraModel], list
 
 
 def replay_log(
-    path: str | Path, camera_id: int = 0, report: LogReport | None = None
+    path: str | Path,
+    camera_id: int = 0,
+    report: LogReport | None = None,
+    flight: str | None = None,
+    missing: list[MissingFrame] | None = None,
 ) -> Iterator[ReplayedFrame]:
     """Yield every processed frame of camera ``camera_id`` of the log, recomputed.
 
     A truncated or damaged part is replayed as far as it is readable, then the next part
     (a frame processed there whose image was lost with the damaged tail is skipped);
     ``report`` says, once the iterator is exhausted, which parts were and how much of each
-    was read (:meth:`~tcm_companion.flightlog.reader.LogReport.problems`)."""
+    was read (:meth:`~tcm_companion.flightlog.reader.LogReport.problems`). A directory of
+    several flights replays the one ``flight`` picks
+    (:func:`~tcm_companion.flightlog.reader.select_flight`). A processed frame the log
+    lacks is skipped and appended to ``missing`` (see the module docstring); the frames
+    after it come with ``after_gap``."""
     from ..flightlog.reader import LogReport, decode_image, decode_json, read_log
 
     p = Path(path)
     report = report if report is not None else LogReport()
-    meta = _metadata(p)
-    config, params = log_config(p)
+    meta = _metadata(p, flight)
+    config, params = log_config(p, flight)
     models, names = _cameras(meta, p)
     if not 0 <= camera_id < len(models):
         raise LogReplayError(f"{p}: no camera {camera_id} in the log's metadata")
@@ -167,15 +219,44 @@ def replay_log(
     endpoint = CompanionEndpoint(config.mavlink.endpoint, params)
     companion: Companion | None = None
     images: dict[int, np.ndarray] = {}
+    gap = False
+    last_index: int | None = None
+    # Frames held back until a health record says whether messages were dropped meanwhile.
+    held: list[ReplayedFrame] = []
+    drops = 0  # messages dropped by the last health record
+    health_us: int | None = None  # its time
     image_topic = log_topics.camera_image(camera_id)
     topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT, log_topics.BOXES}
-    for rec in read_log(p, topics, report):
+    topics.add(log_topics.HEALTH)
+    for rec in read_log(p, topics, report, flight):
         t_mono_us = rec.publish_time_ns // 1000
         if companion is None:
             companion = Companion(
                 models, config.pipeline, endpoint, t_mono_us, config.daemon, names
             )
-        if rec.topic == log_topics.MAVLINK_IN:
+        if held and t_mono_us - held[0].result.t_us > _HEALTH_WAIT_US:
+            yield from held  # no health record to wait for
+            held.clear()
+        if rec.topic == log_topics.HEALTH:
+            now = _log_drops(decode_json(rec))
+            if now is not None and now > drops:
+                # dropped since the last health record: what came after that one lacks them
+                since = health_us if health_us is not None else -1
+                held = [
+                    f
+                    if f.after_gap or int(f.logged.get("t_process_us", 0)) <= since
+                    else ReplayedFrame(f.logged, f.result, True)
+                    for f in held
+                ]
+                gap = True
+                if missing is not None:
+                    missing.append(MissingFrame(since, "not logged", now - drops, "messages"))
+            if now is not None:
+                drops = now
+            health_us = t_mono_us
+            yield from held
+            held.clear()
+        elif rec.topic == log_topics.MAVLINK_IN:
             companion.receive_data(rec.data, t_mono_us)
         elif rec.topic == log_topics.BOXES:  # the live box feed, as the daemon received it
             companion.on_box_datagram(str(decode_json(rec).get("datagram", "")).encode(), t_mono_us)
@@ -191,12 +272,29 @@ def replay_log(
             # Frames superseded before processing were logged but never processed.
             for old in [t for t in images if t < t_capture]:
                 del images[old]
-            if frame_image is None:
-                if any(part.damaged for part in report.parts[:-1]):
-                    continue  # its image was in the lost tail of a damaged part (reported)
-                raise LogReplayError(
-                    f"{p}: frame at {t_capture} us was processed but is not in the log"
-                )
+            # A damaged part's unread tail held the images captured before the next part
+            # began (its results too: those are not here to ask for them).
+            cur = report.parts[-1]
+            lost = (
+                len(report.parts) > 1
+                and report.parts[-2].damaged
+                and cur.first_time_ns is not None
+                and t_capture * 1000 < cur.first_time_ns
+            )
+            why = "lost with a damaged part" if lost else "not logged"
+            index = doc.get("frame_index")
+            if isinstance(index, int) and last_index is not None and index > last_index + 1:
+                # results of processed frames are not in the log (a reset, on a pipeline
+                # rebuild, counts down: not a hole)
+                gap = True
+                if missing is not None:
+                    missing.append(MissingFrame(t_capture, why, index - last_index - 1, "result"))
+            last_index = index if isinstance(index, int) else None
+            if frame_image is None:  # dropped by the writer, or lost with a damaged tail
+                gap = True
+                if missing is not None:
+                    missing.append(MissingFrame(t_capture, why))
+                continue
             offset = doc.get("clock_offset_us")
             result = companion.replay_frame(
                 camera_id,
@@ -208,7 +306,8 @@ def replay_log(
             )
             if result is None:
                 raise LogReplayError(f"{p}: the pipeline raised on the frame at {t_capture} us")
-            yield ReplayedFrame(doc, result)
+            held.append(ReplayedFrame(doc, result, gap))
+    yield from held
 
 
 #: Disparities this close (relative) differ by float rounding only: another CPU's SIMD loops

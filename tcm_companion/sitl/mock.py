@@ -187,7 +187,9 @@ class SitlReport:
             lg = self.log
             out.append(
                 f"  flight log: {lg.frames_logged} frames logged + {lg.frames_dropped_queue}"
-                f" dropped (queue) + {lg.frames_dropped_disk} (disk), {lg.bytes_written / 1e6:.1f} MB"
+                f" dropped (queue) + {lg.frames_dropped_disk} (disk)"
+                + (f" + {lg.frames_dropped_error} (error)" if lg.frames_dropped_error else "")
+                + f", {lg.bytes_written / 1e6:.1f} MB"
                 f" in {len(lg.files)} file(s), sha256 {self.log_sha256[:16]}"
             )
         if self.failures:
@@ -403,7 +405,8 @@ def _report(
         log_stats = flight_log.stats
         delivered = sum(c.delivered for c in summary.camera_stats.values())
         lg = log_stats
-        if lg.frames_logged + lg.frames_dropped_queue + lg.frames_dropped_disk != delivered:
+        dropped = lg.frames_dropped_queue + lg.frames_dropped_disk + lg.frames_dropped_error
+        if lg.frames_logged + dropped != delivered:
             failures.append("flight log: frames logged + dropped != frames delivered")
         log_sha = _file_sha256(lg.files)
     if summary.watchdog_withheld:

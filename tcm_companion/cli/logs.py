@@ -26,7 +26,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..io.outputs import SCENARIO_DIR, atomic_path
     from ..logtools.convert import check_log_path, log_to_scenario
 
-    check_log_path(Path(args.log))  # a missing log is named as such, not as an output
+    check_log_path(Path(args.log), args.flight)  # a missing log is named as such, not as an output
     with atomic_path(args.scenario, kind=SCENARIO_DIR, force=args.force, inputs=[args.log]) as tmp:
         summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id, flight=args.flight)
     for w in summary.warnings:

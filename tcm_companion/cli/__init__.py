@@ -80,8 +80,8 @@ def _error_message(exc: BaseException) -> str | None:
     """What ``main`` prints for an expected error (exit 2), None for a bug (re-raised)."""
     from ..config import ConfigError
 
-    if isinstance(exc, ConfigError):
-        return f"config error: {exc}"
+    if isinstance(exc, ConfigError):  # one line per error (config check reports all)
+        return "\n".join(f"config error: {e}" for e in exc.errors)
     if isinstance(exc, OSError):
         return f"error: {exc}"
     from ..io.scenario import ScenarioError

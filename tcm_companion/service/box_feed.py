@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from ..core.camera import CameraModel
 from ..core.detection import Box
 from ..core.detection.base import wraps_around
+from ..io.transports.urls import check_host
 
 #: The protocol's version, the datagram's ``v``.
 PROTOCOL_VERSION = 1
@@ -84,6 +85,7 @@ def parse_feed_url(url: str) -> tuple[str, int] | None:
     port = int(m["port"])
     if not 1 <= port <= 65535:
         raise ValueError(f"port must be in [1, 65535], got {port}")
+    check_host(url, m["host"])  # an address or a host name, not resolved here
     return m["host"], port
 
 

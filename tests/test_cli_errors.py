@@ -1,0 +1,140 @@
+"""Issue 24 §4: one-line errors, never tracebacks, and no silent success.
+
+Each test here was seen failing on the code before its fix: a setting or an argument
+that could be turned against the program (a URL that is not one, a port someone else
+holds, a duration of 30 years, a file that is not a video ...) is refused in one line
+that names it, and a run that produced nothing does not end as a success.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tcm_companion import cli
+from tcm_companion.config import ConfigError, load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _clean_environ() -> dict[str, str]:
+    """The environment without TCM_COMPANION__ overrides."""
+    return {k: v for k, v in os.environ.items() if not k.startswith("TCM_COMPANION__")}
+
+
+# -- 1. link URLs are checked when the configuration is read ------------------------------------
+@pytest.mark.parametrize(
+    ("url", "names"),
+    [
+        ("garbage", "unknown transport 'garbage'"),
+        ("udpout:127.0.0.1:99999", "port '99999'"),
+        ("udpout:127.0.0.1:0", "port '0'"),
+        ("udpin:0.0.0.0", "HOST:PORT"),
+        ("tcp:999.1.1.1:5760", "'999.1.1.1' is not an IP address"),
+        ("tcp:bad_host:5760", "'bad_host' is not an IP address or a host name"),
+        ("tcp:-x.example:5760", "not an IP address or a host name"),
+        ("serial:/dev/ttyAMA0:9", "baud rate 9"),
+        ("serial:ttyAMA0", "absolute path"),
+        ("memory:x", "unknown transport 'memory:'"),
+    ],
+)
+@pytest.mark.parametrize("key", ["mavlink.url", "camera.sim_url"])
+def test_a_link_url_that_is_not_one_is_a_config_error(key: str, url: str, names: str) -> None:
+    """``config check`` accepted ``mavlink.url = "garbage"``; ``run`` then died with a
+    TransportURLError traceback. Now the loader refuses it naming the table, the key and
+    the flag that set it."""
+    table, _, name = key.partition(".")
+    with pytest.raises(ConfigError) as err:
+        load_config(None, sets=[f"{key}={url}"])
+    msg = str(err.value)
+    assert msg.startswith(f"config: [{table}] {name} = {url!r} is not a link URL: "), msg
+    assert names in msg and msg.endswith(f"(set by --set {key})"), msg
+    assert err.value.key == key
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "udpout:127.0.0.1:14550",
+        "udpin:0.0.0.0:14550",
+        "udpin:127.0.0.1:0",
+        "udpout:[::1]:14550",
+        "udpout:companion.local:14550",
+        "tcp:localhost:5760",
+        "serial:/dev/ttyAMA0",
+        "serial:/dev/ttyAMA0:921600",
+        "serial:/dev/serial/by-path/platform-3f980000.usb-usb-0:1.3:1.0:921600",
+    ],
+)
+def test_sound_link_urls_are_accepted(url: str) -> None:
+    cfg = load_config(None, sets=[f"mavlink.url={url}", f"camera.sim_url={url}"])
+    assert cfg.mavlink.url == url and cfg.camera.source.sim_url == url
+
+
+def test_a_box_feed_host_that_is_not_one_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match=r"\[daemon\]: box_feed .*'999\.0\.0\.1' is not an IP"):
+        load_config(None, sets=["detection.backend=boxes", "daemon.box_feed=udp:999.0.0.1:14660"])
+
+
+def test_run_with_a_bad_url_says_so_in_one_line(tmp_path: Path) -> None:
+    """The command as an integrator types it: exit 2, one line, no traceback."""
+    proc = subprocess.run(
+        [
+            *(sys.executable, "-m", "tcm_companion", "run", "--duration", "1", "--no-status"),
+            *("--set", "mavlink.url=udpout:127.0.0.1:99999"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=_clean_environ(),
+        timeout=120,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "config error: config: [mavlink] url = 'udpout:127.0.0.1:99999' is not a link URL:"
+        " port '99999' is not a number from 1 to 65535 (set by --set mavlink.url)"
+    ]
+
+
+# -- 9. config check reports every error, and takes a byte order mark ---------------------------
+def test_config_check_reports_every_error_of_the_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It stopped at the first one: a file with five mistakes took five runs."""
+    path = tmp_path / "c.toml"
+    path.write_text(
+        "[classifier]\ntcm_threshold = 5\ntreshold = 1\n"
+        "[camera]\nwidth = -3\nfps = 0\n"
+        '[mavlink]\nurl = "udpout:127.0.0.1:99999"\n'
+        '[sim]\nscenario = "T9"\n'
+        "[nonsense]\n"
+    )
+    assert cli.main(["config", "check", str(path), "--set", "logging.jpeg_quality=0"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert all(line.startswith(f"config error: {path}: ") for line in lines), lines
+    wanted = [
+        "unknown table [nonsense]",
+        "[classifier] tcm_threshold = 5 is out of range",
+        "[classifier]: unknown key 'treshold'",
+        "[camera] width = -3 is out of range",
+        "[camera] fps = 0 is out of range",
+        "[mavlink] url = 'udpout:127.0.0.1:99999' is not a link URL",
+        "[sim]: scenario must be one of",
+        "[logging] jpeg_quality = 0 is out of range",
+    ]
+    for text in wanted:
+        assert sum(text in line for line in lines) == 1, (text, lines)
+    assert len(lines) == len(wanted), lines
+    assert any(line.endswith("(set by --set logging.jpeg_quality)") for line in lines)
+
+
+def test_a_utf8_byte_order_mark_is_accepted(tmp_path: Path) -> None:
+    """Notepad saves one; tomllib called it "Invalid statement (at line 1, column 1)"."""
+    path = tmp_path / "c.toml"
+    path.write_bytes(b"\xef\xbb\xbf[sim]\nseed = 7\n")
+    assert load_config(path).sim.seed == 7

@@ -138,3 +138,53 @@ def test_a_utf8_byte_order_mark_is_accepted(tmp_path: Path) -> None:
     path = tmp_path / "c.toml"
     path.write_bytes(b"\xef\xbb\xbf[sim]\nseed = 7\n")
     assert load_config(path).sim.seed == 7
+
+
+# -- 2. a port someone else holds ------------------------------------------------------------------
+def _run_cli(args: list[str], cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "tcm_companion", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=_clean_environ(),
+        timeout=timeout,
+    )
+
+
+def _daemon_args(tmp_path: Path) -> list[str]:
+    """``run`` on a frames directory, its state and no log under ``tmp_path``."""
+    frames = tmp_path / "frames"
+    frames.mkdir(exist_ok=True)
+    return [
+        *("run", "--duration", "2", "--no-status"),
+        *("--set", f"daemon.state_dir={tmp_path / 'state'}", "--set", "logging.enabled=false"),
+        *("--set", "camera.source=frames", "--set", f"camera.path={frames}"),
+    ]
+
+
+@pytest.mark.parametrize("what", ["mavlink", "box_feed", "mock-autopilot"])
+def test_a_udp_port_in_use_is_one_line_naming_it_and_its_holder(what: str, tmp_path: Path) -> None:
+    """It was a TransportOpenError traceback ("could not bind to local_addr"), and for the
+    box feed "error: [Errno None] ... cannot listen: None"."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as held:
+        held.bind(("127.0.0.1", 0))
+        port = held.getsockname()[1]
+        if what == "mavlink":
+            args = [*_daemon_args(tmp_path), "--set", f"mavlink.url=udpin:127.0.0.1:{port}"]
+        elif what == "box_feed":
+            args = [
+                *_daemon_args(tmp_path),
+                *("--set", "detection.backend=boxes"),
+                *("--set", f"daemon.box_feed=udp:127.0.0.1:{port}"),
+            ]
+        else:
+            args = ["mock-autopilot", "--connect", f"udpin:127.0.0.1:{port}"]
+        proc = _run_cli(args, tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    (line,) = [ln for ln in proc.stderr.splitlines() if "error" in ln]
+    assert f"cannot listen on 127.0.0.1:{port}: UDP port {port} is already in use" in line
+    assert f"by pid {os.getpid()} (" in line, line  # this test holds it

@@ -85,10 +85,11 @@ def _error_message(exc: BaseException) -> str | None:
     if isinstance(exc, OSError):
         return f"error: {exc}"
     from ..io.scenario import ScenarioError
+    from ..io.transports import TransportError
     from ..logtools.convert import LogConversionError
     from ..replay.log import LogReplayError
 
-    if isinstance(exc, ScenarioError | LogConversionError | LogReplayError):
+    if isinstance(exc, ScenarioError | LogConversionError | LogReplayError | TransportError):
         return f"error: {exc}"
     return None
 
@@ -139,7 +140,7 @@ def _main(argv: list[str] | None) -> int:
         return int(args.func(args))
     except BrokenPipeError:
         raise  # stdout closed by its reader: main ends quietly, not "error: Broken pipe"
-    except (ValueError, OSError) as exc:
+    except Exception as exc:  # a bug (no message) is raised again, whole
         message = _error_message(exc)
         if message is None:
             raise

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from ..core.camera import CameraModel
 from ..core.detection import Box
 from ..core.detection.base import wraps_around
+from ..io.transports.bind import bound_udp_socket
 from ..io.transports.urls import check_host
 
 #: The protocol's version, the datagram's ``v``.
@@ -227,12 +228,13 @@ async def open_box_feed(
     if address is None:
         raise ValueError("no box feed address")
     loop = asyncio.get_running_loop()
+    # Bound here, so that a port in use is named with its holder (bound_udp_socket).
+    sock = bound_udp_socket(*address, f"[daemon] box_feed {url}")
     try:
         transport, protocol = await loop.create_datagram_endpoint(
-            lambda: BoxFeedProtocol(on_datagram), local_addr=address
+            lambda: BoxFeedProtocol(on_datagram), sock=sock
         )
-    except OSError as exc:
-        raise OSError(
-            exc.errno, f"[daemon] box_feed {url}: cannot listen: {exc.strerror}"
-        ) from None
+    except BaseException:
+        sock.close()
+        raise
     return transport, protocol

@@ -232,9 +232,9 @@ def run_from_args(args: argparse.Namespace) -> int:
     try:
         config = config_from_args(args)
         ap = asyncio.run(_serve_until_signal(args.connect, config))
-    except (TransportError, ValueError, OSError) as exc:
-        print(f"mock-autopilot: {exc}", file=sys.stderr)
-        return 1
+    except (TransportError, ValueError, OSError) as exc:  # a bad URL, a port in use
+        print(f"mock-autopilot: error: {exc}", file=sys.stderr)
+        return 2
     received = len(ap.received_status)
     problems = sum(1 for r in ap.received_status if not r.ok)
     print(

@@ -188,3 +188,79 @@ def test_a_udp_port_in_use_is_one_line_naming_it_and_its_holder(what: str, tmp_p
     (line,) = [ln for ln in proc.stderr.splitlines() if "error" in ln]
     assert f"cannot listen on 127.0.0.1:{port}: UDP port {port} is already in use" in line
     assert f"by pid {os.getpid()} (" in line, line  # this test holds it
+
+
+# -- 3. every size argument is bounded, and says its bound -----------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "option", "limit"),
+    [
+        (["sim", "export", "TS", "D", "--duration", "1e9"], "--duration", "up to 3600"),
+        (["sim", "export", "TS", "D", "--resolution", "100000x100000"], "--resolution", "16384"),
+        (["sim", "export", "TS", "D", "--resolution", "16384x16384"], "--resolution", "4096x4096"),
+        (["sim", "export", "TS", "D", "--seed", "99999999999999"], "--seed", "0..4294967295"),
+        (["eval", "--sim", "TS", "--duration", "1e9"], "--duration", "up to 3600"),
+        (["eval", "--sim", "TS", "--resolutions", "1x1000000"], "--resolutions", "16384"),
+        (["eval", "--sim", "TS", "--seed", "4294967296"], "--seed", "0..4294967295"),
+        (["demo", "--duration", "1e300"], "--duration", "up to 3600"),
+        (["demo", "--seed", "5000000000"], "--seed", "0..4294967295"),
+        (["bench", "--frames", "10000000"], "--frames", "1..100000"),
+        (["bench", "--resolutions", "65536x65536"], "--resolutions", "16384"),
+        (["bench", "--daemon", "--duration", "1e9"], "--duration", "up to 3600"),
+        (["run", "--duration", "1e300"], "--duration", "up to 604800"),
+        (["sitl", "--duration", "1e9"], "--duration", "up to 604800"),
+        (
+            ["mock-autopilot", "--connect", "udpin:0.0.0.0:0", "--ekf-origin-delay", "1e300"],
+            "--ekf-origin-delay",
+            "[0, 600]",
+        ),
+        (
+            ["mock-autopilot", "--connect", "udpin:0.0.0.0:0", "--noise", "1e300"],
+            "--noise",
+            "[0, 100]",
+        ),
+        (
+            ["mock-autopilot", "--connect", "udpin:0.0.0.0:0", "--brake-ttc", "1e300"],
+            "--brake-ttc",
+            "(0, 3600]",
+        ),
+        (
+            ["mock-autopilot", "--connect", "udpin:0.0.0.0:0", "--seed", "4294967296"],
+            "--seed",
+            "0..4294967295",
+        ),
+    ],
+    ids=lambda v: " ".join(v) if isinstance(v, list) else v,
+)
+def test_a_size_beyond_its_bound_is_a_usage_error_that_says_the_bound(
+    argv: list[str], option: str, limit: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``sim export TS DIR --duration 1e9`` was a numpy ArrayMemoryError for 186 GiB.
+    (Parsed only: before the fix these ran, and a 16384x16384 render fills any memory.)"""
+    with pytest.raises(SystemExit) as exc:
+        cli.build_parser().parse_args(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: argument {option}: " in err and limit in err, err
+
+
+def test_the_library_bounds_a_flight_too() -> None:
+    from tcm_companion.sim.scene.scenarios import flight_plan
+
+    with pytest.raises(ValueError, match="at most 3600 s"):
+        flight_plan("TS", duration_s=1e9)
+
+
+def test_running_out_of_memory_is_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """What a bound leaves over (a machine smaller than the bound assumed)."""
+    from tcm_companion.cli import sim
+
+    def hungry(_args: object) -> int:
+        raise MemoryError("Unable to allocate 74.5 GiB")
+
+    monkeypatch.setattr(sim, "cmd_sim_list", hungry)
+    assert cli.main(["sim", "list"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: out of memory (Unable to allocate 74.5 GiB): ask for less")
+    assert err.count("\n") == 1

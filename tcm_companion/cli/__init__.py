@@ -84,6 +84,11 @@ def _error_message(exc: BaseException) -> str | None:
         return "\n".join(f"config error: {e}" for e in exc.errors)
     if isinstance(exc, OSError):
         return f"error: {exc}"
+    if isinstance(exc, MemoryError):  # what the bounds on sizes and durations left over
+        return (
+            f"error: out of memory ({exc or 'no detail'}): ask for less (a smaller"
+            " --resolution, a shorter --duration, fewer --frames)"
+        )
     from ..io.scenario import ScenarioError
     from ..io.transports import TransportError
     from ..logtools.convert import LogConversionError

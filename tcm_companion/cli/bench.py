@@ -10,9 +10,9 @@ from .common import (
     add_command,
     add_config_arguments,
     add_quiet_argument,
+    bench_seconds,
     config_from_args,
     float_in,
-    positive_seconds,
     resolution,
     whole_number,
 )
@@ -71,14 +71,15 @@ def add_parsers(sub: Any) -> None:
         type=resolution,
         nargs="+",
         metavar="WxH",
-        help="image sizes to time (default 360x220 900x550)",
+        help="image sizes to time, 16 to 16384 pixels a side and at most 4096x4096 pixels"
+        " (default 360x220 900x550)",
     )
     p.add_argument(
         "--frames",
-        type=whole_number(1),
+        type=whole_number(1, 100000),
         default=200,
         metavar="N",
-        help="frames timed per resolution and method (default 200)",
+        help="frames timed per resolution and method, 1 to 100000 (default 200)",
     )
     p.add_argument(
         "--mavlink",
@@ -92,10 +93,10 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=bench_seconds,
         default=60.0,
         metavar="S",
-        help="--daemon: seconds to run (default 60)",
+        help="--daemon: seconds to run, at most 3600 (default 60)",
     )
     p.add_argument(
         "--cpu-quota",

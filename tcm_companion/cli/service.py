@@ -35,7 +35,7 @@ from .common import (
     add_set_argument,
     config_from_args,
     percent,
-    positive_seconds,
+    run_seconds,
     setup_logging,
 )
 
@@ -603,10 +603,11 @@ def add_parsers(sub: Any) -> None:
     add_log_level_argument(p)
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=run_seconds,
         default=None,
         metavar="S",
-        help="stop after S seconds (> 0; default: until SIGTERM, exit 0, or SIGINT, exit 130)",
+        help="stop after S seconds (> 0, at most a week; default: until SIGTERM, exit 0, or"
+        " SIGINT, exit 130)",
     )
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")
     _add_status_every(p)
@@ -649,10 +650,10 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=run_seconds,
         default=20.0,
         metavar="S",
-        help="seconds, > 0 (default 20); SIGINT ends the run early (exit 130)",
+        help="seconds, > 0, at most a week (default 20); SIGINT ends the run early (exit 130)",
     )
     p.add_argument(
         "--clock",

@@ -15,10 +15,10 @@ from ..sim.scene.names import SCENARIO_NAMES
 from .common import (
     CAMERA_PRESETS,
     FORCE_HELP,
+    SEED_RANGE,
     add_command,
-    non_negative_number,
-    positive_number,
-    positive_seconds,
+    flight_seconds,
+    float_in,
     resolution,
     whole_number,
 )
@@ -94,17 +94,17 @@ def add_mock_autopilot_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--seed",
-        type=whole_number(0),
+        type=whole_number(*SEED_RANGE),
         default=0,
         metavar="N",
-        help="seed of the turbulence and telemetry noise",
+        help="seed of the turbulence and telemetry noise, 0 to 4294967295",
     )
     parser.add_argument(
         "--noise",
-        type=non_negative_number,
+        type=float_in(lambda v: 0.0 <= v <= 100.0, "a number in [0, 100]"),
         default=1.0,
         metavar="X",
-        help="telemetry noise scale (default 1; 0: exact)",
+        help="telemetry noise scale, 0 to 100 (default 1; 0: exact)",
     )
     parser.add_argument(
         "--sysid",
@@ -115,14 +115,14 @@ def add_mock_autopilot_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--ekf-origin-delay",
-        type=non_negative_number,
+        type=float_in(lambda v: 0.0 <= v <= 600.0, "a number of seconds in [0, 600]"),
         default=3.0,
         metavar="S",
         help="seconds after boot before LOCAL_POSITION_NED exists (ArduPilot SITL: ~40)",
     )
     parser.add_argument(
         "--brake-ttc",
-        type=positive_number,
+        type=float_in(lambda v: 0.0 < v <= 3600.0, "a number of seconds in (0, 3600]"),
         default=3.0,
         metavar="S",
         help="brake on a collision-course status with time to contact below this",
@@ -175,21 +175,22 @@ def add_parsers(sub: Any) -> None:
         type=resolution,
         default=None,
         metavar="WxH",
-        help="image size (the same field of view; default: the camera's own)",
+        help="image size (the same field of view; 16 to 16384 pixels a side, at most"
+        " 4096x4096 pixels; default: the camera's own)",
     )
     e.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=flight_seconds,
         default=None,
         metavar="S",
-        help="seconds of flight (default: the scenario's)",
+        help="seconds of flight, at most 3600 (default: the scenario's)",
     )
     e.add_argument(
         "--seed",
-        type=whole_number(0),
+        type=whole_number(*SEED_RANGE),
         default=0,
         metavar="N",
-        help="seed of the flight (turbulence, noise)",
+        help="seed of the flight (turbulence, noise), 0 to 4294967295",
     )
     e.set_defaults(func=cmd_sim_export)
     ls = add_command(

@@ -264,3 +264,63 @@ def test_running_out_of_memory_is_one_line(
     err = capsys.readouterr().err
     assert err.startswith("error: out of memory (Unable to allocate 74.5 GiB): ask for less")
     assert err.count("\n") == 1
+
+
+# -- 4. a camera that never produced a frame is not a success ---------------------------------------
+def test_a_file_that_is_not_a_video_is_refused_at_start_like_a_missing_one(tmp_path: Path) -> None:
+    """It was retried for ever (exit 0, 0 frames) while a missing file was refused."""
+    from tcm_companion.core.camera import Equirectangular
+    from tcm_companion.io.cameras.base import CameraError
+    from tcm_companion.io.cameras.settings import CameraSettings, open_source
+
+    junk = tmp_path / "flight.mp4"
+    junk.write_text("not a video\n")
+    empty = tmp_path / "frames"
+    empty.mkdir()
+    cam = Equirectangular(360, 220)
+    with pytest.raises(CameraError, match=r"^camera\.path: .*flight\.mp4: OpenCV cannot open"):
+        open_source(CameraSettings(source="file", path=str(junk)), cam)
+    with pytest.raises(CameraError, match=r"^camera\.path: .*frames: no images"):
+        open_source(CameraSettings(source="frames", path=str(empty)), cam)
+
+    proc = _run_cli(
+        [*_daemon_args(tmp_path), "--set", "camera.source=file", "--set", f"camera.path={junk}"],
+        tmp_path,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and "retrying" not in proc.stderr
+    assert f"error: camera.path: {junk}: OpenCV cannot open this video" in proc.stderr
+
+
+def test_run_whose_camera_never_produced_a_frame_fails_at_the_end(tmp_path: Path) -> None:
+    """``run --duration 8`` with no camera at all exited 0."""
+    device = tmp_path / "video7"  # no such device
+    proc = _run_cli(
+        [
+            *_daemon_args(tmp_path),
+            *("--set", "camera.source=device", "--set", f"camera.device={device}"),
+        ],
+        tmp_path,
+    )
+    assert proc.returncode == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"error: camera {device} never produced a frame: it could not be opened")
+    assert "no such device" in last
+    assert proc.stdout.startswith("stopped after 2.0 s: captured 0, processed 0")
+
+
+def test_a_camera_whose_every_image_was_rejected_never_produced_a_frame() -> None:
+    from tcm_companion.cli.service import cameras_without_frames
+    from tcm_companion.io.cameras.base import CameraStats
+
+    stats = {
+        "ok": CameraStats(captured=5, delivered=5),
+        "junk": CameraStats(captured=2, rejected_empty=1, rejected_size=1),
+        "gone": CameraStats(read_errors=1, last_error="unplugged"),
+    }
+    assert cameras_without_frames(stats) == [
+        "camera junk never produced a frame: all 2 images it returned were rejected (1 empty,"
+        " 1 of the wrong size)",
+        "camera gone never produced a frame: reading failed (unplugged)",
+    ]

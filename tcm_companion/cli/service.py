@@ -413,7 +413,32 @@ def cmd_run(args: argparse.Namespace) -> int:
         f" {summary.dropped}, failed {summary.failed}, rejected {summary.rejected}; {latency};"
         f" faults {summary.faults or 'none'}{feed}"
     )
-    return _Signals.exit_status(True, stopped_by, service=True)
+    silent = cameras_without_frames(summary.camera_stats)
+    for line in silent:
+        print(f"error: {line}", file=sys.stderr)
+    return _Signals.exit_status(not silent, stopped_by, service=True)
+
+
+def cameras_without_frames(camera_stats: dict[str, Any]) -> list[str]:
+    """Why each camera that delivered no frame in the whole run did not, one line each
+    (a run that saw nothing is not a success, whatever stopped it)."""
+    out = []
+    for name, s in camera_stats.items():
+        if s.delivered:
+            continue
+        if s.captured:
+            why = (
+                f"all {s.captured} images it returned were rejected ({s.rejected_empty} empty,"
+                f" {s.rejected_size} of the wrong size)"
+            )
+        elif s.open_failures:
+            why = f"it could not be opened ({s.open_failures} tries; last: {s.last_error})"
+        elif s.last_error:
+            why = f"reading failed ({s.last_error})"
+        else:
+            why = "it returned no image"
+        out.append(f"camera {name} never produced a frame: {why}")
+    return out
 
 
 def write_summary_json(path: str, summary: Any) -> None:

@@ -67,6 +67,7 @@ class CameraStats:
     reconnects: int = 0  # successful re-opens after a loss
     ended: bool = False  # a finite source reached its end
     retimed: int = 0  # delivered frames whose t_capture_us was moved forward to stay increasing
+    last_error: str = ""  # why the last open() or read() failed ("" none yet)
 
 
 class FrameSource(ABC):

@@ -129,6 +129,7 @@ class ReaderCore:
             else:
                 with self._lock:
                     self._stats.read_errors += 1
+                    self._stats.last_error = str(exc)
                 log.warning("camera %s: lost (%s)", src.name, exc)
                 outcome = "lost"
         except Exception as exc:
@@ -137,6 +138,7 @@ class ReaderCore:
             else:
                 with self._lock:
                     self._stats.read_errors += 1
+                    self._stats.last_error = f"read() raised {exc!r}"
                 log.warning(
                     "camera %s: read() raised %r; treated as lost", src.name, exc, exc_info=True
                 )
@@ -169,6 +171,7 @@ class ReaderCore:
         except Exception as exc:
             with self._lock:
                 self._stats.open_failures += 1
+                self._stats.last_error = str(exc)
             log.warning(
                 "camera %s: open failed (%s); retrying in %.1f s", src.name, exc, self._backoff_s
             )

@@ -324,3 +324,32 @@ def test_a_camera_whose_every_image_was_rejected_never_produced_a_frame() -> Non
         " 1 of the wrong size)",
         "camera gone never produced a frame: reading failed (unplugged)",
     ]
+
+
+# -- 5. a setting the simulated run does not use is named, not dropped in silence -------------------
+@pytest.mark.parametrize("command", ["run", "sitl"])
+@pytest.mark.parametrize("url", ["udpout:10.0.0.5:14550", ""])
+def test_mavlink_url_with_the_simulator_is_said_to_be_ignored(
+    command: str, url: str, tmp_path: Path
+) -> None:
+    """With ``source = "sim"`` the daemon talks to the in-process mock autopilot over its
+    own loopback pair: a ``--set mavlink.url=...`` was dropped without a word."""
+    args = [command, "--duration", "1"]
+    if command == "run":
+        args += ["--no-status", "--set", "camera.source=sim"]
+        args += ["--set", f"daemon.state_dir={tmp_path / 'state'}"]
+    else:
+        args += ["--clock", "virtual", "--min-accuracy", "0", "--status-every", "0"]
+    args += ["--set", "logging.enabled=false"]
+    if url:
+        args += ["--set", f"mavlink.url={url}"]
+    proc = _run_cli(args, tmp_path)
+    assert proc.returncode in (0, 1), proc.stderr  # a 1 s flight may decide nothing
+    assert "Traceback" not in proc.stderr
+    warned = [ln for ln in proc.stderr.splitlines() if "[mavlink] url" in ln]
+    if url:
+        (line,) = warned
+        assert f"WARNING tcm_companion: [mavlink] url = '{url}' is ignored" in line
+        assert 'source = "sim_autopilot"' in line
+    else:
+        assert warned == []  # the default is not worth a word

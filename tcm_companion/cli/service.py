@@ -313,6 +313,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     if config.camera.source.source == "sim":
         log.info("camera source is the simulator: flying the mock autopilot (SITL)")
+        _warn_url_ignored(config, 'with [camera] source = "sim"')
         from ..logsetup import log_directory
 
         log_dir = str(log_directory(config, state)) if config.logging.enabled else None
@@ -497,6 +498,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
+    _warn_url_ignored(config, "by sitl")
     from ..sitl.mock import DEFAULT_MIN_ACCURACY
 
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
@@ -508,6 +510,22 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     return _run_sitl_until(
         config, args.duration, printer, signals, log_dir=args.log, min_accuracy=min_accuracy
     )
+
+
+def _warn_url_ignored(config: AppConfig, when: str) -> None:
+    """Say that ``[mavlink] url`` is not used (``when``): the daemon then talks to the
+    mock autopilot in the same process, over a loopback UDP pair of its own."""
+    from ..service.endpoint_setup import MavlinkSettings
+
+    url = config.mavlink.url
+    if url != MavlinkSettings.url:
+        log.warning(
+            "[mavlink] url = %r is ignored %s: the daemon talks to the mock autopilot in this"
+            " process over loopback UDP; to fly the simulated camera against your own"
+            ' autopilot, use [camera] source = "sim_autopilot" with sim_url',
+            url,
+            when,
+        )
 
 
 def _finish(report: SitlReport, signals: _Signals, *, service: bool = False) -> int:

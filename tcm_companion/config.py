@@ -124,6 +124,8 @@ class CameraConfig:
 _MODEL_KEYS = {"model", "width", "height", "mount_rpy_deg"} | {
     k for ks in _KEYS.values() for k in ks
 }
+#: The keys of ``[camera]`` that describe the lens (the rest say where frames come from).
+LENS_KEYS = frozenset(_MODEL_KEYS)
 
 
 def camera_config_from_table(table: Any, where: str) -> CameraConfig:

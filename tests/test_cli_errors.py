@@ -353,3 +353,57 @@ def test_mavlink_url_with_the_simulator_is_said_to_be_ignored(
         assert 'source = "sim_autopilot"' in line
     else:
         assert warned == []  # the default is not worth a word
+
+
+# -- 6. source = "scenario" takes the camera the scenario declares -----------------------------------
+EXAMPLE_PINHOLE = ROOT / "tests" / "data" / "examples" / "EX-PINHOLE"
+
+
+def test_run_on_a_scenario_takes_its_camera_model_and_says_so(tmp_path: Path) -> None:
+    """It refused: "scenario ... has 640x480 frames but the camera model is 360x220",
+    although the scenario declares its camera (scenario.toml [camera])."""
+    args = _daemon_args(tmp_path)
+    args[args.index("camera.source=frames")] = "camera.source=scenario"
+    args[args.index(f"camera.path={tmp_path / 'frames'}")] = f"camera.path={EXAMPLE_PINHOLE}"
+    proc = _run_cli(args, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert (
+        f"INFO tcm_companion: camera model: scenario {EXAMPLE_PINHOLE} declares a pinhole"
+        " 640x480 camera" in proc.stderr
+    )
+    assert "processed 0" not in proc.stdout, proc.stdout
+
+    # A lens key this run sets that the scenario contradicts: a conflict, named.
+    proc = _run_cli([*args, "--set", "camera.width=500"], tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("error: camera.source = 'scenario': scenario ")
+    assert "declares a pinhole 640x480 camera" in line
+    assert "camera.width = 500 (--set camera.width; the scenario's: 640)" in line
+
+
+def test_the_scenario_camera_replaces_the_configured_one(caplog: pytest.LogCaptureFixture) -> None:
+    from tcm_companion.cli.service import camera_from_scenario
+    from tcm_companion.io.scenario import load_scenario
+
+    declared = load_scenario(EXAMPLE_PINHOLE, check_frames=False).camera
+    base = load_config(None, sets=["camera.source=scenario", f"camera.path={EXAMPLE_PINHOLE}"])
+    assert camera_from_scenario(base, {}).camera.model == declared
+    # a camera someone described (not the built-in default) is replaced with a warning
+    fisheye = load_config(
+        None,
+        sets=[
+            "camera.source=scenario",
+            f"camera.path={EXAMPLE_PINHOLE}",
+            "camera.model=fisheye",
+            *("camera.width=640", "camera.height=640", "camera.fx=200.0", "camera.fy=200.0"),
+            *("camera.cx=320.0", "camera.cy=320.0", "camera.dist=[0.0, 0.0, 0.0, 0.0]"),
+        ],
+    )
+    with caplog.at_level("INFO"):
+        assert camera_from_scenario(fisheye, {}).camera.model == declared
+    (record,) = [r for r in caplog.records if "camera model" in r.getMessage()]
+    assert record.levelname == "WARNING" and "model, height" in record.getMessage()
+    with pytest.raises(ValueError, match=r"camera\.model = 'fisheye' \(environment X"):
+        camera_from_scenario(fisheye, {"model": "environment X"})

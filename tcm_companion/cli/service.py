@@ -308,6 +308,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ..service.endpoint_setup import resolve_state_paths
 
     config = dataclasses.replace(config, mavlink=resolve_state_paths(config.mavlink, state))
+    if config.camera.source.source == "scenario":
+        try:
+            config = camera_from_scenario(config, _lens_overrides(args.set, os.environ))
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     signals = _Signals()
     ran_out: list[bool] = []  # --duration ended the run (not a signal)
 
@@ -440,6 +446,77 @@ def cameras_without_frames(camera_stats: dict[str, Any]) -> list[str]:
             why = "it returned no image"
         out.append(f"camera {name} never produced a frame: {why}")
     return out
+
+
+def _lens_overrides(sets: list[str], environ: Any) -> dict[str, str]:
+    """The ``[camera]`` lens keys this run sets with ``--set`` or the environment, and
+    how (``{"width": "--set camera.width"}``)."""
+    from ..config import ENV_PREFIX, LENS_KEYS
+
+    out = {}
+    for name in environ:
+        parts = name.removeprefix(ENV_PREFIX).lower().split("__")
+        if name.startswith(ENV_PREFIX) and len(parts) == 2 and parts[0] == "camera":
+            if parts[1] in LENS_KEYS:
+                out[parts[1]] = f"environment {name}"
+    for item in sets:
+        table, _, key = item.partition("=")[0].strip().partition(".")
+        if table == "camera" and key in LENS_KEYS:
+            out[key] = f"--set camera.{key}"
+    return out
+
+
+def camera_from_scenario(config: AppConfig, overrides: dict[str, str]) -> AppConfig:
+    """``config`` with the camera model ``[camera] path``'s scenario declares (its
+    ``scenario.toml`` ``[camera]``): with ``source = "scenario"`` the recorded frames are
+    the camera. The configuration's own lens keys (the drone's camera) are replaced, with
+    a warning naming those that differ; a differing key this run sets itself
+    (``overrides``: ``--set``, environment) is a conflict, a ValueError naming it."""
+    from ..io.scenario import ScenarioError, load_scenario
+
+    path = config.camera.source.path
+    if not Path(path).is_dir():
+        return config  # the source says "no such directory"
+    try:
+        declared = load_scenario(path, check_frames=False).camera
+    except (ScenarioError, OSError) as exc:
+        raise ValueError(f"camera.path: {exc} (camera.source = 'scenario')") from None
+    mine, theirs = config.camera.model.to_dict(), declared.to_dict()
+    differ = [k for k in {**mine, **theirs} if mine.get(k) != theirs.get(k)]
+    what = f"{declared.model_name} {declared.width}x{declared.height}"
+    conflicts = [k for k in differ if k in overrides]
+    if conflicts:
+
+        def show(d: dict[str, Any], k: str) -> str:
+            return repr(d[k]) if k in d else "(none)"
+
+        raise ValueError(
+            f"camera.source = 'scenario': scenario {path} declares a {what} camera (its"
+            " scenario.toml [camera]), and this run sets "
+            + ", ".join(
+                f"camera.{k} = {show(mine, k)} ({overrides[k]}; the scenario's:"
+                f" {show(theirs, k)})"
+                for k in conflicts
+            )
+            + ": drop the override to take the scenario's camera"
+        )
+    if differ:
+        from ..config import CameraConfig
+
+        # The built-in default (or the repository's config.toml, which writes it out) is
+        # not a camera someone described: replacing it is worth a note, not a warning.
+        described = config.camera.model != CameraConfig().model
+        log.log(
+            logging.WARNING if described else logging.INFO,
+            "camera model: scenario %s declares a %s camera; the configuration's [camera]"
+            " %s are replaced by the scenario's",
+            path,
+            what,
+            ", ".join(differ),
+        )
+    else:
+        log.info("camera model: scenario %s declares a %s camera", path, what)
+    return dataclasses.replace(config, camera=dataclasses.replace(config.camera, model=declared))
 
 
 def write_summary_json(path: str, summary: Any) -> None:

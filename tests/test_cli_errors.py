@@ -407,3 +407,78 @@ def test_the_scenario_camera_replaces_the_configured_one(caplog: pytest.LogCaptu
     assert record.levelname == "WARNING" and "model, height" in record.getMessage()
     with pytest.raises(ValueError, match=r"camera\.model = 'fisheye' \(environment X"):
         camera_from_scenario(fisheye, {"model": "environment X"})
+
+
+# -- 7. latency is never negative ------------------------------------------------------------------
+EXAMPLE_T90_FRAMES = ROOT / "tests" / "data" / "examples" / "EX-T90" / "frames"
+
+
+def test_frames_read_as_fast_as_possible_have_no_negative_latency(tmp_path: Path) -> None:
+    """``realtime = false`` gave "latency p99 -79.09 ms" (p50 -7940 ms): the files'
+    series of capture times (anchor + i / fps) ran ahead of the monotonic clock the
+    output is stamped on, a mixed time base. The daemon's readers now take a time after
+    the read as the read's."""
+    import json
+
+    summary = tmp_path / "summary.json"
+    proc = _run_cli(
+        [
+            *("run", "--duration", "3", "--no-status", "--summary-json", str(summary)),
+            *("--set", f"daemon.state_dir={tmp_path / 'state'}", "--set", "logging.enabled=false"),
+            *("--set", "camera.source=frames", "--set", f"camera.path={EXAMPLE_T90_FRAMES}"),
+            *("--set", "camera.realtime=false", "--set", "camera.loop=true"),
+        ],
+        tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(summary.read_text())
+    assert doc["processed"] > 0
+    for p in ("p50", "p90", "p99", "max"):
+        assert doc[f"latency_{p}_ms"] >= 0.0, doc
+    assert "latency p99 -" not in proc.stdout
+
+
+def test_a_reader_that_may_not_see_the_future_stamps_on_the_read() -> None:
+    """The rule itself, on an injected clock: a source's time after the read is the read's;
+    times stay strictly increasing; the source's own times are kept otherwise."""
+    import numpy as np
+
+    from tcm_companion.io.cameras.base import FrameSource
+    from tcm_companion.io.cameras.reader import ReaderCore
+
+    clock = [1_000_000]
+    image = np.full((4, 6, 3), 9, np.uint8)
+
+    class Ahead(FrameSource):
+        """Times 40 ms apart from 1 s, whatever the clock (a file read fast)."""
+
+        def __init__(self) -> None:
+            super().__init__("ahead", 6, 4)
+            self.k = 0
+
+        def open(self) -> None:
+            pass
+
+        def read(self) -> tuple[np.ndarray, int]:
+            self.k += 1
+            return image, 1_000_000 + 40_000 * (self.k - 1)
+
+        def close(self) -> None:
+            pass
+
+    def times(no_future: bool) -> list[int]:
+        core = ReaderCore(Ahead(), 0, no_future=no_future)
+        core.step(lambda: clock[0], lambda: False)  # open
+        out = []
+        for _ in range(4):
+            clock[0] += 10_000  # the read comes 10 ms after the last: 4x the file's rate
+            step = core.step(lambda: clock[0], lambda: False)
+            assert step.frame is not None
+            out.append(step.frame.t_capture_us)
+        assert core.stats.restamped == (3 if no_future else 0)
+        return out
+
+    clock[0] = 1_000_000
+    assert times(False) == [1_000_000, 1_040_000, 1_080_000, 1_120_000]  # the source's
+    clock[0] = 1_000_000
+    assert times(True) == [1_000_000, 1_020_000, 1_030_000, 1_040_000]  # never ahead

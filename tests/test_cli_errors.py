@@ -482,3 +482,120 @@ def test_a_reader_that_may_not_see_the_future_stamps_on_the_read() -> None:
     assert times(False) == [1_000_000, 1_040_000, 1_080_000, 1_120_000]  # the source's
     clock[0] = 1_000_000
     assert times(True) == [1_000_000, 1_020_000, 1_030_000, 1_040_000]  # never ahead
+
+
+# -- 8. the drone's install: no matplotlib, no tqdm --------------------------------------------------
+#: What the ``tools`` extra brings (and what only it needs).
+TOOLS_ONLY = ("matplotlib", "mpl_toolkits", "tqdm")
+EXAMPLE_T90 = ROOT / "tests" / "data" / "examples" / "EX-T90"
+
+
+@pytest.fixture(scope="module")
+def site_without_tools(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """This environment's site-packages without the ``tools`` extra: a directory of
+    symbolic links to every entry but matplotlib's and tqdm's (a few hundred links, no
+    copy), for an interpreter started with ``-S`` (no site-packages of its own)."""
+    import site
+
+    (packages,) = [p for p in site.getsitepackages() if (Path(p) / "numpy").is_dir()]
+    out = tmp_path_factory.mktemp("site-without-tools")
+    for entry in Path(packages).iterdir():
+        if not entry.name.lower().startswith(TOOLS_ONLY):
+            (out / entry.name).symlink_to(entry)
+    return out
+
+
+def _run_without_tools(
+    site_dir: Path, args: list[str], cwd: Path
+) -> subprocess.CompletedProcess[str]:
+    """``tcm-companion ARGS`` as installed without the ``tools`` extra."""
+    script = (
+        "import site, sys\n"
+        f"site.addsitedir({str(site_dir)!r})\n"  # its .pth files too (the editable install)
+        "for name in ('matplotlib', 'tqdm'):\n"
+        "    try:\n"
+        "        __import__(name)\n"
+        "    except ImportError:\n"
+        "        pass\n"
+        "    else:\n"
+        "        raise SystemExit(f'{name} is importable: the test would prove nothing')\n"
+        "from tcm_companion.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    return subprocess.run(
+        [sys.executable, "-S", "-c", script, *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=_clean_environ(),
+        timeout=300,
+    )
+
+
+#: Each command that draws nothing, as the drone would run it, and what it prints.
+WITHOUT_TOOLS = {
+    "config check": (["config", "check", str(ROOT / "config.toml")], "OK."),
+    "sim list": (["sim", "list"], "T90"),
+    "sim export": (
+        ["sim", "export", "T90", "OUT/scn", "--duration", "0.2", "--resolution", "90x55"],
+        "wrote T90: 5 frames",
+    ),
+    "import": (["import", str(EXAMPLE_T90), "--log", "OUT/t90.mcap"], "-> OUT/t90.mcap"),
+    "import --results": (
+        ["import", str(EXAMPLE_T90), "--log", "OUT/r.mcap", "--results"],
+        "-> OUT/r.mcap",
+    ),
+    "export": (["export", "OUT/r.mcap", "--scenario", "OUT/back"], "100 frames"),
+    "replay": (["replay", str(EXAMPLE_T90), "--results", "OUT/r.csv"], "EX-T90: 100 frames"),
+    "replay LOG": (["replay", "OUT/r.mcap", "--results", "OUT/log.csv"], "frames replayed"),
+    "eval": (
+        ["eval", str(EXAMPLE_T90), "--no-bsm", "--out", "OUT/ev"],
+        "no plots in OUT/ev/: matplotlib is not installed: pip install 'tcm-companion[tools]'",
+    ),
+    "bench": (["bench", "--frames", "3", "--resolutions", "90x55"], "90x55"),
+    "run": (
+        [
+            *("run", "--duration", "1", "--no-status", "--set", "daemon.state_dir=OUT/state"),
+            *("--set", "camera.source=frames", "--set", f"camera.path={EXAMPLE_T90 / 'frames'}"),
+        ],
+        "stopped after 1.0 s",
+    ),
+    "sitl": (
+        [
+            *("sitl", "--clock", "virtual", "--duration", "1", "--min-accuracy", "0"),
+            *("--set", "logging.enabled=false", "--status-every", "0"),
+        ],
+        "SITL T90",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(WITHOUT_TOOLS))
+def test_every_command_that_draws_nothing_works_without_the_tools_extra(
+    name: str, site_without_tools: Path, tmp_path: Path
+) -> None:
+    """``export`` was a ModuleNotFoundError traceback for matplotlib on the drone's
+    install: ``logtools/__init__.py`` imported the plotting module eagerly."""
+    args, says = WITHOUT_TOOLS[name]
+    out = tmp_path / "OUT"
+    out.mkdir()
+    if name in ("export", "replay LOG"):  # a log of the scenario to start from
+        prep = _run_without_tools(
+            site_without_tools, ["import", str(EXAMPLE_T90), "--log", "OUT/r.mcap"], tmp_path
+        )
+        assert prep.returncode == 0, prep.stderr
+    proc = _run_without_tools(site_without_tools, args, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert says in proc.stdout + proc.stderr
+
+
+def test_plot_without_the_tools_extra_names_the_extra(
+    site_without_tools: Path, tmp_path: Path
+) -> None:
+    proc = _run_without_tools(site_without_tools, ["plot", str(EXAMPLE_T90)], tmp_path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == (
+        "error: plot: matplotlib is not installed: pip install 'tcm-companion[tools]'"
+        " (make installs it)"
+    )

@@ -599,3 +599,73 @@ def test_plot_without_the_tools_extra_names_the_extra(
         "error: plot: matplotlib is not installed: pip install 'tcm-companion[tools]'"
         " (make installs it)"
     )
+
+
+# -- 10. what the docs say about damaged frames is what the commands do -----------------------------
+@pytest.fixture(scope="module")
+def damaged_scenarios(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """EX-T90 with frame 5's file removed, and with it replaced by junk."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("damaged")
+    out = {}
+    for kind in ("missing", "corrupt"):
+        path = root / kind
+        shutil.copytree(EXAMPLE_T90, path)
+        frame = path / "frames" / "000005.png"
+        if kind == "missing":
+            frame.unlink()
+        else:
+            frame.write_bytes(b"not a png")
+        out[kind] = path
+    return out
+
+
+@pytest.mark.parametrize("command", ["replay", "eval", "plot"])
+def test_a_missing_frame_is_refused_and_an_unreadable_one_skipped_by_every_command(
+    command: str,
+    damaged_scenarios: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The format's rule, "readers must reject a malformed scenario with an error that
+    names the file, the line and the problem": a frame frames.csv lists without its file
+    is malformed. A frame that is there but unreadable is damage, read around."""
+
+    def argv(scenario: Path) -> list[str]:
+        return {
+            "replay": ["replay", str(scenario), "--results", str(tmp_path / "r.csv"), "-q"],
+            "eval": ["eval", str(scenario), "--no-bsm", "-q", "--out", str(tmp_path / "ev")],
+            "plot": ["plot", str(scenario), "--out", str(tmp_path / "plots")],
+        }[command]
+
+    missing = damaged_scenarios["missing"]
+    assert cli.main(argv(missing)) == 2
+    err = capsys.readouterr().err
+    assert (
+        err
+        == f"error: {missing}/frames.csv: line 7: frame 5 has no file {missing}/frames/000005.png\n"
+    )
+    assert not (tmp_path / "r.csv").exists() and not (tmp_path / "ev").exists()
+
+    if command == "plot":
+        pytest.importorskip("matplotlib")
+    assert cli.main(argv(damaged_scenarios["corrupt"]) + ["--force"] * (command == "replay")) == 0
+    err = capsys.readouterr().err
+    assert "000005.png: cannot be read as an image" in err, err
+
+
+def test_the_docs_say_what_the_commands_do_with_damaged_frames() -> None:
+    """README said eval "stops at it ... (exit 2)" (it skips it, exit 0); the scenario
+    format page listed a missing frame as skipped (every command refuses it)."""
+    import re
+
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    assert "`eval` stops at it" not in readme
+    assert re.search(r"`replay`, `eval` and `plot` skip an unreadable frame", readme)
+    assert "whose file is missing makes the scenario malformed" in readme
+    fmt = " ".join((ROOT / "docs" / "scenario-format.md").read_text().split())
+    unreadable = fmt[fmt.index("**An unreadable frame**") :]
+    assert "(missing," not in unreadable[:200]
+    assert "skipped and reported by `replay`, `eval` and `plot` alike" in unreadable
+    assert "a frame `frames.csv` lists whose image file does not exist" in fmt

@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -669,3 +670,70 @@ def test_the_docs_say_what_the_commands_do_with_damaged_frames() -> None:
     assert "(missing," not in unreadable[:200]
     assert "skipped and reported by `replay`, `eval` and `plot` alike" in unreadable
     assert "a frame `frames.csv` lists whose image file does not exist" in fmt
+
+
+# -- 11. the options each command should have, and its own usage for one it does not --------------
+def test_sitl_has_no_status_as_run_does(tmp_path: Path) -> None:
+    base = [
+        *("sitl", "--clock", "virtual", "--duration", "2", "--min-accuracy", "0"),
+        *("--status-every", "1", "--set", "logging.enabled=false"),
+    ]
+    shown = _run_cli(base, tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    assert "objects " in shown.stderr  # the status line, once a second
+    quiet = _run_cli([*base, "--no-status"], tmp_path)
+    assert quiet.returncode == 0, quiet.stderr
+    assert "objects " not in quiet.stderr and "fps |" not in quiet.stderr
+
+
+def test_sim_export_has_quiet(tmp_path: Path) -> None:
+    base = ["sim", "export", "TS", "OUT", "--duration", "2.4", "--resolution", "64x40"]
+    loud = _run_cli(base, tmp_path)
+    assert loud.returncode == 0 and "rendering TS" in loud.stderr, loud.stderr
+    quiet = _run_cli([*base, "--force", "-q"], tmp_path)
+    assert quiet.returncode == 0, quiet.stderr
+    assert quiet.stderr == ""
+
+
+#: A valid command line of every command (what it needs, nothing else).
+MINIMAL_ARGV = {
+    "run": ["run"],
+    "sitl": ["sitl"],
+    "config check": ["config", "check", "c.toml"],
+    "replay": ["replay", "SCN", "--results", "r.csv"],
+    "eval": ["eval", "SCN"],
+    "demo": ["demo"],
+    "bench": ["bench"],
+    "export": ["export", "LOG", "--scenario", "DIR"],
+    "import": ["import", "SCN", "--log", "x.mcap"],
+    "plot": ["plot", "SCN"],
+    "sim export": ["sim", "export", "TS", "DIR"],
+    "sim list": ["sim", "list"],
+    "mock-autopilot": ["mock-autopilot", "--connect", "udpin:0.0.0.0:0"],
+}
+
+
+def test_minimal_argv_covers_every_command() -> None:
+    def leaves(parser: Any, path: tuple[str, ...] = ()) -> list[str]:
+        subs = [a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction"]
+        if not subs:
+            return [" ".join(path)]
+        return [leaf for a in subs for n, p in a.choices.items() for leaf in leaves(p, (*path, n))]
+
+    assert sorted(leaves(cli.build_parser())) == sorted(MINIMAL_ARGV)
+
+
+@pytest.mark.parametrize("command", list(MINIMAL_ARGV))
+def test_an_unknown_option_is_reported_with_the_command_s_own_usage(
+    command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``sim export TS DIR -q`` printed the top level's usage ("usage: tcm-companion [-h]
+    [--version] COMMAND ..."), which says nothing about the command's options."""
+    with pytest.raises(SystemExit) as exc:
+        cli.build_parser().parse_args([*MINIMAL_ARGV[command], "--no-such-option"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"usage: tcm-companion {command} "), err
+    assert err.endswith(
+        f"tcm-companion {command}: error: unrecognized arguments: --no-such-option\n"
+    )

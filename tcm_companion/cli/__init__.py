@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from typing import Any
 
 from .. import __version__
 from . import bench, evaluate, logs, replay, service, sim
@@ -53,8 +54,23 @@ present) > built-in defaults.
 """
 
 
+class _Parser(argparse.ArgumentParser):
+    """A parser that reports arguments it does not know itself, with its own usage: the
+    command's (``tcm-companion sim export: error: unrecognized arguments: --bogus``), where
+    argparse leaves them to the top level, which printed its own usage instead. Every
+    command's parser is one (``add_subparsers`` makes its parsers of the parent's class)."""
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Any = None, namespace: Any = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed, extras
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="tcm-companion",
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,

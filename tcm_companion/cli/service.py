@@ -580,7 +580,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
 
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
-    printer = _status_printer(args.status_every)
+    printer = _status_printer(args.status_every, not args.no_status)
     signals = _Signals()
     if args.clock == "virtual":
         return _run_sitl_virtual(config, args.duration, printer, signals, args.log, min_accuracy)
@@ -793,6 +793,7 @@ def add_parsers(sub: Any) -> None:
         " warm-up is below this, or nothing was decided (default 90; 0: not judged)",
     )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
+    p.add_argument("--no-status", action="store_true", help="no status line on stderr")
     _add_status_every(p)
     p.set_defaults(func=cmd_sitl)
 

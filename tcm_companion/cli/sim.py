@@ -17,6 +17,7 @@ from .common import (
     FORCE_HELP,
     SEED_RANGE,
     add_command,
+    add_quiet_argument,
     flight_seconds,
     float_in,
     resolution,
@@ -52,7 +53,9 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
             seed=args.seed,
         )
     with atomic_path(args.dir, force=args.force, is_dir=True) as tmp:
-        export_scenario(sim, tmp, detections=args.detections or None)
+        export_scenario(
+            sim, tmp, progress=False if args.quiet else None, detections=args.detections or None
+        )
     print(
         f"wrote {sim.name}: {sim.n_frames} frames, {sim.camera.model_name} "
         f"{sim.camera.width}x{sim.camera.height} -> {args.dir}"
@@ -158,6 +161,7 @@ def add_parsers(sub: Any) -> None:
     )
     e.add_argument("dir", help="output directory")
     e.add_argument("--force", action="store_true", help=FORCE_HELP)
+    add_quiet_argument(e)
     e.add_argument(
         "--detections",
         action="store_true",

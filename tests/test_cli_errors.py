@@ -737,3 +737,61 @@ def test_an_unknown_option_is_reported_with_the_command_s_own_usage(
     assert err.endswith(
         f"tcm-companion {command}: error: unrecognized arguments: --no-such-option\n"
     )
+
+
+# -- 12. start-up states read as such, not as faults -------------------------------------------------
+def test_position_before_the_ekf_origin_is_waiting_not_a_fault() -> None:
+    """``make run`` passed and printed ``faults: {'position missing': 1}``: the mock's
+    EKF origin comes 3 s after boot (ArduPilot's tens of seconds), as designed."""
+    from tcm_companion.core.camera import Equirectangular
+    from tcm_companion.core.pipeline import PipelineConfig
+    from tcm_companion.mavlink.endpoint import CompanionEndpoint
+    from tcm_companion.service.companion import Companion
+    from tcm_companion.service.inputs import Inputs, InputSpec
+
+    t0 = 1_000_000_000
+    inputs = Inputs([InputSpec("position", 10.0, 1_000_000, starts_late=True)], t0)
+    st = inputs.status(t0 + 1_000_000)["position"]
+    assert (st.condition, st.problem, st.fault) == ("waiting", "waiting for position", False)
+    assert inputs.changes(t0 + 1_000_000) == [("position", "waiting for position")]
+    for k in range(10):  # it comes at 3 s ...
+        inputs.update("position", t0 + 3_000_000 + k * 100_000)
+    assert inputs.changes(t0 + 4_000_000) == [("position", "")]
+    st = inputs.status(t0 + 6_000_000)["position"]  # ... and goes: that is a fault
+    assert (st.problem, st.fault) == ("position stale", True)
+
+    comp = Companion([Equirectangular(360, 220)], PipelineConfig(), CompanionEndpoint(now_us=0), 0)
+    comp.tick(1_000_000)
+    assert not [f for f in comp.stats.faults if "position" in f], comp.stats.faults
+    assert "TCM: waiting for position" in comp.endpoint.statustexts_queued
+    line = comp.status_line(1_000_000)
+    assert "waiting for position" in line and "position missing" not in line
+
+
+def test_the_first_status_line_says_starting_not_zero_fps() -> None:
+    from tcm_companion.core.camera import Equirectangular
+    from tcm_companion.core.pipeline import PipelineConfig
+    from tcm_companion.mavlink.endpoint import CompanionEndpoint
+    from tcm_companion.service.companion import Companion
+
+    comp = Companion([Equirectangular(360, 220)], PipelineConfig(), CompanionEndpoint(now_us=0), 0)
+    assert "| starting |" in comp.status_line(1_000_000)
+    assert " 0.0 fps" not in comp.status_line(1_000_000)
+    # No frame two seconds in is no longer starting: the rate is measured, and it is 0.
+    assert "|  0.0 fps |" in comp.status_line(2_500_000)
+
+
+def test_a_sitl_run_like_make_run_reports_no_start_up_fault(tmp_path: Path) -> None:
+    proc = _run_cli(
+        [
+            *("sitl", "--clock", "virtual", "--duration", "4", "--status-every", "1"),
+            *("--set", "logging.enabled=false"),
+        ],
+        tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "  faults: none;" in proc.stdout, proc.stdout
+    status = [ln for ln in proc.stderr.splitlines() if ln.startswith("objects ")]
+    assert "| starting |" in status[0] and "waiting for position" in status[0]
+    assert "0.0 fps" not in proc.stderr and "position missing" not in proc.stderr
+    assert "1 moving" in status[-1]  # the T90 ball moves: what `make run` shows

@@ -494,8 +494,7 @@ def camera_from_scenario(config: AppConfig, overrides: dict[str, str]) -> AppCon
             f"camera.source = 'scenario': scenario {path} declares a {what} camera (its"
             " scenario.toml [camera]), and this run sets "
             + ", ".join(
-                f"camera.{k} = {show(mine, k)} ({overrides[k]}; the scenario's:"
-                f" {show(theirs, k)})"
+                f"camera.{k} = {show(mine, k)} ({overrides[k]}; the scenario's: {show(theirs, k)})"
                 for k in conflicts
             )
             + ": drop the override to take the scenario's camera"

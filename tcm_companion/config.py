@@ -994,6 +994,10 @@ def apply_overrides(
     return origins
 
 
+#: The largest configuration file read (the repository's is ~20 KiB).
+MAX_CONFIG_BYTES = 1024 * 1024
+
+
 def load_config(
     path: str | Path | None,
     *,
@@ -1010,8 +1014,14 @@ def load_config(
         p = Path(path)
         where = str(p)
         try:
+            with open(p, "rb") as fh:
+                raw = fh.read(MAX_CONFIG_BYTES + 1)  # /dev/zero would never end
+            if len(raw) > MAX_CONFIG_BYTES:
+                raise ConfigError(
+                    f"{p}: larger than {MAX_CONFIG_BYTES // 1024} KiB: not a configuration file"
+                )
             # A UTF-8 byte order mark (Windows editors write one) is not TOML: skip it.
-            doc = tomllib.loads(p.read_bytes().removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
+            doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
         except FileNotFoundError:
             raise ConfigError(f"{p}: no such file") from None
         except IsADirectoryError:

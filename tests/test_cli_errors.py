@@ -20,6 +20,9 @@ from tcm_companion import cli
 from tcm_companion.config import ConfigError, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE_T90 = ROOT / "tests" / "data" / "examples" / "EX-T90"
+EXAMPLE_T90_FRAMES = ROOT / "tests" / "data" / "examples" / "EX-T90" / "frames"
+EXAMPLE_PINHOLE = ROOT / "tests" / "data" / "examples" / "EX-PINHOLE"
 
 
 def _clean_environ() -> dict[str, str]:
@@ -142,6 +145,16 @@ def test_a_utf8_byte_order_mark_is_accepted(tmp_path: Path) -> None:
 
 
 # -- 2. a port someone else holds ------------------------------------------------------------------
+def _bounded_memory() -> None:
+    """In the child: at most 6 GiB of address space, so that a command that reads
+    without end (``config check /dev/zero`` did) fails with a MemoryError, not the
+    machine's out-of-memory killer."""
+    import resource
+
+    limit = 6 * 1024**3
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+
 def _run_cli(args: list[str], cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "tcm_companion", *args],
@@ -150,13 +163,13 @@ def _run_cli(args: list[str], cwd: Path, timeout: float = 120) -> subprocess.Com
         cwd=cwd,
         env=_clean_environ(),
         timeout=timeout,
+        preexec_fn=_bounded_memory,
     )
 
 
 def _daemon_args(tmp_path: Path) -> list[str]:
-    """``run`` on a frames directory, its state and no log under ``tmp_path``."""
-    frames = tmp_path / "frames"
-    frames.mkdir(exist_ok=True)
+    """``run`` on a frames directory (EX-T90's), its state and no log under ``tmp_path``."""
+    frames = EXAMPLE_T90_FRAMES
     return [
         *("run", "--duration", "2", "--no-status"),
         *("--set", f"daemon.state_dir={tmp_path / 'state'}", "--set", "logging.enabled=false"),
@@ -357,7 +370,6 @@ def test_mavlink_url_with_the_simulator_is_said_to_be_ignored(
 
 
 # -- 6. source = "scenario" takes the camera the scenario declares -----------------------------------
-EXAMPLE_PINHOLE = ROOT / "tests" / "data" / "examples" / "EX-PINHOLE"
 
 
 def test_run_on_a_scenario_takes_its_camera_model_and_says_so(tmp_path: Path) -> None:
@@ -365,7 +377,7 @@ def test_run_on_a_scenario_takes_its_camera_model_and_says_so(tmp_path: Path) ->
     although the scenario declares its camera (scenario.toml [camera])."""
     args = _daemon_args(tmp_path)
     args[args.index("camera.source=frames")] = "camera.source=scenario"
-    args[args.index(f"camera.path={tmp_path / 'frames'}")] = f"camera.path={EXAMPLE_PINHOLE}"
+    args[args.index(f"camera.path={EXAMPLE_T90_FRAMES}")] = f"camera.path={EXAMPLE_PINHOLE}"
     proc = _run_cli(args, tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
@@ -411,7 +423,6 @@ def test_the_scenario_camera_replaces_the_configured_one(caplog: pytest.LogCaptu
 
 
 # -- 7. latency is never negative ------------------------------------------------------------------
-EXAMPLE_T90_FRAMES = ROOT / "tests" / "data" / "examples" / "EX-T90" / "frames"
 
 
 def test_frames_read_as_fast_as_possible_have_no_negative_latency(tmp_path: Path) -> None:
@@ -488,7 +499,6 @@ def test_a_reader_that_may_not_see_the_future_stamps_on_the_read() -> None:
 # -- 8. the drone's install: no matplotlib, no tqdm --------------------------------------------------
 #: What the ``tools`` extra brings (and what only it needs).
 TOOLS_ONLY = ("matplotlib", "mpl_toolkits", "tqdm")
-EXAMPLE_T90 = ROOT / "tests" / "data" / "examples" / "EX-T90"
 
 
 @pytest.fixture(scope="module")
@@ -795,3 +805,120 @@ def test_a_sitl_run_like_make_run_reports_no_start_up_fault(tmp_path: Path) -> N
     assert "| starting |" in status[0] and "waiting for position" in status[0]
     assert "0.0 fps" not in proc.stderr and "position missing" not in proc.stderr
     assert "1 moving" in status[-1]  # the T90 ball moves: what `make run` shows
+
+
+# -- beyond the list: every command against hostile arguments ---------------------------------------
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Files that are not what a command expects: empty, a directory, junk, not UTF-8."""
+    root = tmp_path_factory.mktemp("hostile")
+    (root / "empty").write_bytes(b"")
+    (root / "adir").mkdir()
+    (root / "emptydir").mkdir()
+    (root / "file.txt").write_text("x\n")
+    (root / "junk.mcap").write_bytes(b"garbage\n")
+    (root / "latin.toml").write_bytes(b"\xff\xfe[sim]\nseed = 1\n")
+    return root
+
+
+EX = str(EXAMPLE_T90)
+DAEMON = ["--no-status", "--set", "daemon.state_dir=st", "--set", "camera.source=frames"]
+DAEMON += ["--set", f"camera.path={EXAMPLE_T90 / 'frames'}"]
+
+#: (arguments, what the one error line says); every one exits 2 without a traceback.
+HOSTILE = [
+    (["config", "check", "latin.toml"], "not UTF-8"),
+    (["config", "check", "adir"], "is a directory"),
+    (["config", "check", "/dev/zero"], "larger than 1024 KiB: not a configuration file"),
+    (["config", "check", "empty", "--set", "classifier.tcm_threshold=nan"], "must be finite"),
+    (["config", "check", "empty", "--set", "sim.seed=1e400"], "must be an integer"),
+    (["config", "check", "empty", "--set", "camera.mount_rpy_deg=[nan, 0, 0]"], "three numbers"),
+    (["config", "check", "empty", "--set", "camera"], "expected TABLE.KEY=VALUE"),
+    (["replay", EX, "--results", "r.csv", "--config", "latin.toml"], "not UTF-8"),
+    (["replay", "empty", "--results", "r.csv"], "not a directory"),
+    (["replay", "emptydir", "--results", "r.csv"], "scenario.toml: missing"),
+    (["replay", "junk.mcap", "--results", "r.csv"], "no tcm-companion metadata record"),
+    (
+        [
+            *("replay", EX, "--results", "r.csv", "-q", "--set", "detection.backend=onnx"),
+            *("--set", "detection.onnx_model=junk.mcap"),
+        ],
+        "cannot read it as an ONNX model",
+    ),
+    (["replay", EX, "--results", "/proc/nowhere/r.csv"], "error: /proc/nowhere: No such file"),
+    (["eval", "emptydir", "-q"], "scenario.toml: missing"),
+    (["export", "junk.mcap", "--scenario", "out"], "error: junk.mcap: "),
+    (["export", "emptydir", "--scenario", "out"], "holds no flight log"),
+    (["import", "file.txt", "--log", "o.mcap"], "not a directory"),
+    (["plot", "junk.mcap", "--out", "pl"], "junk.mcap: nothing to plot"),
+    (["plot", "emptydir", "--out", "pl"], "scenario.toml: missing"),
+    (["sim", "export", "TS", "/proc/nowhere", "--duration", "0.2"], "No such file or directory"),
+    (["bench", "--resolutions", "0x0"], "resolution must be positive"),
+    (["run", "--duration", "1", "--summary-json", "adir", *DAEMON], "adir: is a directory"),
+    (
+        ["run", "--duration", "1", "--set", "logging.directory=file.txt", *DAEMON],
+        "[logging] directory file.txt: not a directory",
+    ),
+    (["sitl", "--clock", "virtual", "--duration", "1", "--log", "file.txt"], "not a directory"),
+    (["mock-autopilot", "--connect", "garbage"], "unknown transport 'garbage'"),
+]
+
+
+@pytest.mark.parametrize(
+    ("args", "says"), HOSTILE, ids=lambda v: " ".join(v)[:60] if isinstance(v, list) else None
+)
+def test_hostile_arguments_are_one_line_and_exit_2(
+    args: list[str], says: str, hostile: Path, tmp_path: Path
+) -> None:
+    """A directory where a file is expected, an empty or junk file, text that is not
+    UTF-8, NaN and infinities, paths that cannot be: exit 2, one ``error`` line that
+    names the input, no traceback. (Before: an OnnxModelError traceback for a file that
+    is not a model; "plot" of a junk file exited 0 having drawn nothing; a flight log
+    directory that is a file, or --summary-json a directory, found out only after the
+    run; "[Errno 2] No such file ..."; mock-autopilot exited 1.)"""
+    import shutil
+
+    for entry in hostile.iterdir():  # each case in a directory of its own
+        dest = tmp_path / entry.name
+        if entry.is_dir():
+            shutil.copytree(entry, dest)
+        else:
+            shutil.copy(entry, dest)
+    proc = _run_cli(args, tmp_path)
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
+    assert "Traceback" not in proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if "error" in ln]
+    assert len(errors) == 1 and says in errors[0], proc.stderr[-2000:]
+
+
+def test_mock_autopilot_stops_on_sigterm_while_its_link_is_down(tmp_path: Path) -> None:
+    """``mock-autopilot --connect serial:/dev/nonexistent`` waited for the link to come
+    up whatever signal came: only SIGKILL ended it."""
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [
+            *(sys.executable, "-m", "tcm_companion", "mock-autopilot"),
+            *("--connect", f"serial:{tmp_path / 'ttyNONE'}:57600"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+        env=_clean_environ(),
+    )
+    try:
+        deadline = time.monotonic() + 60
+        assert proc.stderr is not None
+        for line in proc.stderr:  # the link's first failure: it is waiting for it now
+            if "retrying with backoff" in line or time.monotonic() > deadline:
+                break
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0
+    assert out.startswith("mock autopilot: 0 status messages received")

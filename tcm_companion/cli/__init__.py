@@ -99,18 +99,24 @@ def _error_message(exc: BaseException) -> str | None:
     if isinstance(exc, ConfigError):  # one line per error (config check reports all)
         return "\n".join(f"config error: {e}" for e in exc.errors)
     if isinstance(exc, OSError):
+        if exc.filename is not None and exc.strerror:  # not "[Errno 21] Is a directory: 'x'"
+            other = f" -> {exc.filename2}" if exc.filename2 is not None else ""
+            return f"error: {exc.filename}{other}: {exc.strerror}"
         return f"error: {exc}"
     if isinstance(exc, MemoryError):  # what the bounds on sizes and durations left over
         return (
             f"error: out of memory ({exc or 'no detail'}): ask for less (a smaller"
             " --resolution, a shorter --duration, fewer --frames)"
         )
+    from ..core.detection import OnnxModelError
     from ..io.scenario import ScenarioError
     from ..io.transports import TransportError
     from ..logtools.convert import LogConversionError
     from ..replay.log import LogReplayError
 
-    if isinstance(exc, ScenarioError | LogConversionError | LogReplayError | TransportError):
+    if isinstance(
+        exc, ScenarioError | LogConversionError | LogReplayError | TransportError | OnnxModelError
+    ):
         return f"error: {exc}"
     return None
 

@@ -295,6 +295,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     130 when SIGINT (Ctrl-C) does, 2 on a configuration or start-up error."""
     setup_logging(args.log_level)
     config = config_from_args(args)
+    if args.summary_json:  # found now, not after a flight of hours
+        where = Path(args.summary_json)
+        if where.is_dir() or not where.parent.resolve().is_dir():
+            what = "is a directory" if where.is_dir() else "its directory does not exist"
+            print(f"error: --summary-json {where}: {what}", file=sys.stderr)
+            return 2
     from ..io.sdnotify import Notifier, watchdog_interval_us
 
     notifier = Notifier.from_env()
@@ -305,6 +311,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"error: state directory {state}: {exc.strerror}", file=sys.stderr)
         return 2
+    if config.logging.enabled:
+        from ..logsetup import log_directory
+
+        why = _unusable_directory(log_directory(config, state))
+        if why:
+            print(f"error: [logging] directory {why}", file=sys.stderr)
+            return 2
     from ..service.endpoint_setup import resolve_state_paths
 
     config = dataclasses.replace(config, mavlink=resolve_state_paths(config.mavlink, state))
@@ -577,6 +590,11 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     _warn_url_ignored(config, "by sitl")
     from ..sitl.mock import DEFAULT_MIN_ACCURACY
 
+    if args.log is not None:
+        why = _unusable_directory(Path(args.log))
+        if why:
+            print(f"error: --log {why}", file=sys.stderr)
+            return 2
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
     printer = _status_printer(args.status_every, not args.no_status)
@@ -602,6 +620,20 @@ def _warn_url_ignored(config: AppConfig, when: str) -> None:
             url,
             when,
         )
+
+
+def _unusable_directory(path: Path) -> str:
+    """Why the flight log cannot go into ``path`` ("" when it can: created if missing):
+    found at start, not as a writer thread's warning once the run is under way."""
+    if path.exists() and not path.is_dir():
+        return f"{path}: not a directory"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"{path}: {exc.strerror or exc}"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return f"{path}: not writable by this user"
+    return ""
 
 
 def _finish(report: SitlReport, signals: _Signals, *, service: bool = False) -> int:

@@ -159,11 +159,18 @@ async def run_mock_autopilot(
             try:
                 data = finished.result()
             except LinkDown:
-                # A reconnecting link: wait for it rather than give up.
+                # A reconnecting link: wait for it rather than give up, but not past a
+                # stop (SIGINT, SIGTERM): waiting on regardless, a link that never came up
+                # (no such device) left only SIGKILL to end the command.
                 wait_connected = getattr(transport, "wait_connected", None)
                 if wait_connected is None:
                     break
-                await wait_connected()
+                connected = asyncio.ensure_future(wait_connected())
+                await asyncio.wait({connected, stop_task}, return_when=asyncio.FIRST_COMPLETED)
+                if not connected.done():
+                    connected.cancel()
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await connected
                 continue
             except TransportClosed:
                 log.info("link closed")

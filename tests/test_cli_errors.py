@@ -854,6 +854,10 @@ HOSTILE = [
     (["plot", "emptydir", "--out", "pl"], "scenario.toml: missing"),
     (["sim", "export", "TS", "/proc/nowhere", "--duration", "0.2"], "No such file or directory"),
     (["bench", "--resolutions", "0x0"], "resolution must be positive"),
+    (
+        ["bench", "--daemon", "--duration", "1", "--set", "camera.width=abc"],
+        "[camera] width must be a positive integer",
+    ),
     (["run", "--duration", "1", "--summary-json", "adir", *DAEMON], "adir: is a directory"),
     (
         ["run", "--duration", "1", "--set", "logging.directory=file.txt", *DAEMON],

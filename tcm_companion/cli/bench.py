@@ -37,6 +37,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
             return 2
         from ..bench.daemon import CpuQuotaError, print_daemon_bench, run_daemon_bench
 
+        # The --set the daemon will get, checked here: a bad one is this command's
+        # "config error", not a RuntimeError traceback carrying the daemon's.
+        config_from_args(args)
         try:
             result = run_daemon_bench(
                 args.duration, extra_sets=tuple(args.set), cpu_quota=args.cpu_quota
@@ -44,6 +47,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         except CpuQuotaError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        except RuntimeError as exc:  # the daemon failed: its first and last words
+            lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+            print(f"error: bench --daemon: {lines[0].rstrip(':')}: {lines[-1]}", file=sys.stderr)
+            return 1
         print_daemon_bench(result)
         return 0
     if args.cpu_quota is not None:

@@ -50,6 +50,37 @@ class ConfigError(ValueError):
         super().__init__(message)
         self.key = key
 
+    @property
+    def errors(self) -> list[ConfigError]:
+        """Each error on its own (one here; several in :class:`ConfigErrors`)."""
+        return [self]
+
+
+class ConfigErrors(ConfigError):
+    """Several errors of one configuration, all found in one reading (``config check``
+    reports every one); ``str()`` is one line per error."""
+
+    def __init__(self, errors: typing.Sequence[ConfigError]) -> None:
+        flat = [e for err in errors for e in err.errors]
+        super().__init__("\n".join(str(e) for e in flat))
+        self._errors = flat
+
+    @property
+    def errors(self) -> list[ConfigError]:
+        return list(self._errors)
+
+
+def _combined(errors: typing.Sequence[ConfigError]) -> ConfigError:
+    """The errors found as one exception: one as itself, several as :class:`ConfigErrors`."""
+    flat = [e for err in errors for e in err.errors]
+    return flat[0] if len(flat) == 1 else ConfigErrors(flat)
+
+
+def _raise_all(errors: typing.Sequence[ConfigError]) -> None:
+    """Raise the errors found, if any (:func:`_combined`)."""
+    if errors:
+        raise _combined(errors)
+
 
 @dataclass(frozen=True)
 class SimConfig:
@@ -93,6 +124,8 @@ class CameraConfig:
 _MODEL_KEYS = {"model", "width", "height", "mount_rpy_deg"} | {
     k for ks in _KEYS.values() for k in ks
 }
+#: The keys of ``[camera]`` that describe the lens (the rest say where frames come from).
+LENS_KEYS = frozenset(_MODEL_KEYS)
 
 
 def camera_config_from_table(table: Any, where: str) -> CameraConfig:
@@ -101,22 +134,29 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
         raise ConfigError(f"{where} must be a table")
     model_keys = {k: v for k, v in table.items() if k in _MODEL_KEYS}
     source_keys = {k: v for k, v in table.items() if k not in _MODEL_KEYS and k != "name"}
+    errors: list[ConfigError] = []
     name = table.get("name", "camera0")
     if not isinstance(name, str) or not name:
-        raise ConfigError(f"{_key_at(where, 'name')} must be a non-empty string, got {name!r}")
+        errors.append(
+            ConfigError(f"{_key_at(where, 'name')} must be a non-empty string, got {name!r}")
+        )
+    model: CameraModel | None = _default_camera_model()
     if model_keys:
         merged = {"model": "equirectangular", "width": 360, "height": 220, **model_keys}
         # Ranges first (numbers only: camera_from_dict reports a wrong type).
         given = {k: (k, v, v) for k, v in model_keys.items()}
-        _check_ranges("camera", where, given, merged.get, list(merged))
         try:
+            _check_ranges("camera", where, given, merged.get, list(merged))
             model = camera_from_dict(merged, where=where)
+        except ConfigError as exc:
+            errors.append(exc)
+            model = None
         except CameraModelError as exc:
             # camera_from_dict writes "<where>.key"; the other messages "<where> key".
             msg = str(exc).replace(f"{where}.", _key_at(where, ""), 1)
-            raise ConfigError(msg) from None
-    else:
-        model = _default_camera_model()
+            errors.append(ConfigError(msg))
+            model = None
+    source: CameraSettings | None = None
     try:
         source = build_dataclass(CameraSettings, source_keys, where)
     except ConfigError as exc:
@@ -125,8 +165,14 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
         def at(m: re.Match[str]) -> str:
             return _key_at(_table_at(where, m[1]) if m[1] else where, "")
 
-        msg = re.sub(rf"{re.escape(where)}: camera\.(?:(front|back)\.)?", at, str(exc), count=1)
-        raise ConfigError(msg, exc.key) from None
+        for e in exc.errors:
+            msg = re.sub(rf"{re.escape(where)}: camera\.(?:(front|back)\.)?", at, str(e), count=1)
+            errors.append(ConfigError(msg, e.key))
+    sim_url = source_keys.get("sim_url", CameraSettings.sim_url)
+    if isinstance(sim_url, str) and sim_url:  # "" with sim_autopilot: CameraSettings says
+        errors += _url_errors(sim_url, where, "sim_url", "camera.sim_url")
+    _raise_all(errors)
+    assert model is not None and source is not None and isinstance(name, str)
     if source.source == "dual_fisheye" and model.model_name != "equirectangular":
         raise ConfigError(
             f'{_key_at(where, "model")} must be "equirectangular" for source = "dual_fisheye" '
@@ -680,35 +726,12 @@ def build_dataclass(cls: type, table: Any, where: str, ranges_key: str | None = 
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     kwargs: dict[str, Any] = {}
     given: dict[str, tuple[str, Any, Any]] = {}  # field -> (key, value) as written, value
+    errors: list[ConfigError] = []  # every key's, reported together
     for key, value in table.items():
-        name, val = key, value
-        if key not in fields and key.endswith("_deg") and f"{key[:-4]}_rad" in fields:
-            name = f"{key[:-4]}_rad"
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ConfigError(
-                    f"{_key_at(where, key)} must be a number of degrees, got {value!r}"
-                )
-            val = math.radians(value)
-        if name not in fields:
-            known = ", ".join(sorted(fields))
-            raise ConfigError(f"{where}: unknown key {key!r} (known keys: {known})")
-        if name in kwargs:
-            raise ConfigError(f"{where}: {name} given twice (as _rad and _deg)")
-        tp = hints[name]
-        if dataclasses.is_dataclass(tp):
-            nested = None if prefix is None else _join(prefix, key)
-            kwargs[name] = build_dataclass(tp, val, _table_at(where, key), nested)  # type: ignore[arg-type]
-        else:
-            kwargs[name] = _coerce(val, tp, _key_at(where, key))
-            given[name] = (key, kwargs[name], value)
-            if prefix is not None and _is_table_list(tp) and isinstance(val, list):
-                # [[table.key]]: each table's values against RANGES["table.key.x"]
-                # (built by the dataclass itself, which checks their types).
-                for i, item in enumerate(val):
-                    if isinstance(item, dict):
-                        items = {k: (k, v, v) for k, v in item.items()}
-                        at = _table_at(where, f"{key}[{i}]")
-                        _check_ranges(_join(prefix, key), at, items, item.get, list(item))
+        try:
+            _build_field(key, value, where, prefix, fields, hints, kwargs, given)
+        except ConfigError as exc:
+            errors.append(exc)
     if prefix is not None:
 
         def lookup(name: str) -> Any:
@@ -717,11 +740,60 @@ def build_dataclass(cls: type, table: Any, where: str, ranges_key: str | None = 
             f = fields.get(name)
             return None if f is None or f.default is dataclasses.MISSING else f.default
 
-        _check_ranges(prefix, where, given, lookup, list(fields))
+        try:
+            _check_ranges(prefix, where, given, lookup, list(fields))
+        except ConfigError as exc:
+            errors.append(exc)
+    _raise_all(errors)  # the relations between fields are checked on sound values only
     try:
         return cls(**kwargs)
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+def _build_field(
+    key: str,
+    value: Any,
+    where: str,
+    prefix: str | None,
+    fields: dict[str, dataclasses.Field[Any]],
+    hints: dict[str, Any],
+    kwargs: dict[str, Any],
+    given: dict[str, tuple[str, Any, Any]],
+) -> None:
+    """One key of :func:`build_dataclass`'s table: its checked value into ``kwargs`` (and
+    ``given``, for the range checks), or a :class:`ConfigError` naming it."""
+    name, val = key, value
+    if key not in fields and key.endswith("_deg") and f"{key[:-4]}_rad" in fields:
+        name = f"{key[:-4]}_rad"
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{_key_at(where, key)} must be a number of degrees, got {value!r}")
+        val = math.radians(value)
+    if name not in fields:
+        known = ", ".join(sorted(fields))
+        raise ConfigError(f"{where}: unknown key {key!r} (known keys: {known})")
+    if name in kwargs:
+        raise ConfigError(f"{where}: {name} given twice (as _rad and _deg)")
+    tp = hints[name]
+    if dataclasses.is_dataclass(tp):
+        nested = None if prefix is None else _join(prefix, key)
+        kwargs[name] = build_dataclass(tp, val, _table_at(where, key), nested)  # type: ignore[arg-type]
+        return
+    kwargs[name] = _coerce(val, tp, _key_at(where, key))
+    given[name] = (key, kwargs[name], value)
+    if prefix is not None and _is_table_list(tp) and isinstance(val, list):
+        # [[table.key]]: each table's values against RANGES["table.key.x"]
+        # (built by the dataclass itself, which checks their types).
+        errors: list[ConfigError] = []
+        for i, item in enumerate(val):
+            if isinstance(item, dict):
+                items = {k: (k, v, v) for k, v in item.items()}
+                at = _table_at(where, f"{key}[{i}]")
+                try:
+                    _check_ranges(_join(prefix, key), at, items, item.get, list(item))
+                except ConfigError as exc:
+                    errors.append(exc)
+        _raise_all(errors)
 
 
 def _is_number(x: object) -> bool:
@@ -779,8 +851,9 @@ def _check_ranges(
     lookup: typing.Callable[[str], Any],
     names: list[str],
 ) -> None:
-    """Refuse the first value of ``given`` (name -> (key as written, value, value as
-    written)) outside its range in :data:`RANGES` under ``prefix``, naming that key.
+    """Refuse every value of ``given`` (name -> (key as written, value, value as
+    written)) outside its range in :data:`RANGES` under ``prefix``, naming each key
+    (the first item of a list that is out of range).
 
     ``lookup(name)`` is the value a field will have (given or default), for ranges bound
     by another key (``cx`` by ``width``): those are checked after the others, and also
@@ -792,6 +865,7 @@ def _check_ranges(
         return spec.hi_key if isinstance(spec, Range) else ""
 
     order = [n for n in given if not bound_by(n)] + [n for n in names if bound_by(n)]
+    errors: list[ConfigError] = []
     for name in order:
         spec = RANGES.get(_join(prefix, name))
         if spec is None:
@@ -817,11 +891,14 @@ def _check_ranges(
         index, x, r, label = bad
         if not index and _is_number(shown):
             x = shown  # as written (in degrees for x_deg)
-        raise ConfigError(
-            f"{_key_at(where, key)}{index}{label} = {_num(x)}{default} is out of range: "
-            f"must be {r.must(deg=deg, hi=hi)}",
-            _join(prefix, key),
+        errors.append(
+            ConfigError(
+                f"{_key_at(where, key)}{index}{label} = {_num(x)}{default} is out of range: "
+                f"must be {r.must(deg=deg, hi=hi)}",
+                _join(prefix, key),
+            )
         )
+    _raise_all(errors)
 
 
 def _range_of(table: str, key: str) -> tuple[str, bool] | None:
@@ -917,6 +994,10 @@ def apply_overrides(
     return origins
 
 
+#: The largest configuration file read (the repository's is ~20 KiB).
+MAX_CONFIG_BYTES = 1024 * 1024
+
+
 def load_config(
     path: str | Path | None,
     *,
@@ -934,7 +1015,13 @@ def load_config(
         where = str(p)
         try:
             with open(p, "rb") as fh:
-                doc = tomllib.load(fh)
+                raw = fh.read(MAX_CONFIG_BYTES + 1)  # /dev/zero would never end
+            if len(raw) > MAX_CONFIG_BYTES:
+                raise ConfigError(
+                    f"{p}: larger than {MAX_CONFIG_BYTES // 1024} KiB: not a configuration file"
+                )
+            # A UTF-8 byte order mark (Windows editors write one) is not TOML: skip it.
+            doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
         except FileNotFoundError:
             raise ConfigError(f"{p}: no such file") from None
         except IsADirectoryError:
@@ -945,22 +1032,30 @@ def load_config(
             from .io.scenario import not_utf8
 
             raise ConfigError(f"{p}: {not_utf8(p)}") from None
+        except OSError as exc:  # permission denied, an I/O error
+            raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from None
     origins = apply_overrides(doc, environ, sets)
     try:
         return config_from_dict(doc, where)
     except ConfigError as exc:
-        msg = str(exc)
-        if exc.key:  # one value at fault: name what set it, if not the file
-            origin = origins.get(exc.key) or origins.get(f"pipeline.{exc.key}")
-            if origin:
+        raise _combined([_name_origin(e, origins) for e in exc.errors]) from None
+
+
+def _name_origin(exc: ConfigError, origins: dict[str, str]) -> ConfigError:
+    """``exc`` naming the environment variable or ``--set`` that set the bad value, if
+    one did (``origins``: dotted key -> what set it)."""
+    msg = str(exc)
+    if exc.key:  # one value at fault: name what set it, if not the file
+        origin = origins.get(exc.key) or origins.get(f"pipeline.{exc.key}")
+        if origin:
+            msg += f" (set by {origin})"
+    else:
+        for key, origin in origins.items():
+            table, _, name = key.rpartition(".")
+            tables = {f"[{table}]", f"[{table.removeprefix('pipeline.')}]"}
+            if any(t in msg for t in tables) and re.search(rf"\b{re.escape(name)}\b", msg):
                 msg += f" (set by {origin})"
-        else:
-            for key, origin in origins.items():
-                table, _, name = key.rpartition(".")
-                tables = {f"[{table}]", f"[{table.removeprefix('pipeline.')}]"}
-                if any(t in msg for t in tables) and re.search(rf"\b{re.escape(name)}\b", msg):
-                    msg += f" (set by {origin})"
-        raise ConfigError(msg, exc.key) from None
+    return ConfigError(msg, exc.key)
 
 
 _TABLES = ("pipeline", "mavlink", "daemon", "sim", "camera", "logging")
@@ -1007,23 +1102,39 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
     for w in warnings:
         log.warning("%s", w)
     known = set(_TABLES) | {f.name for f in dataclasses.fields(PipelineConfig)}
+    errors: list[ConfigError] = []  # every table's, reported together
     for key in doc:
         if key not in known:
-            raise ConfigError(f"{where}: unknown table [{key}] (known: {', '.join(sorted(known))})")
-    try:
-        pipeline = build_dataclass(
-            PipelineConfig, _pipeline_table(doc, where), f"{where}: [pipeline]"
-        )
-        tables = {
-            name: build_dataclass(cls, doc.get(name, {}), f"{where}: [{name}]")
-            for name, cls in (
-                ("mavlink", MavlinkSettings),
-                ("daemon", DaemonConfig),
-                ("sim", SimConfig),
-                ("logging", LoggingConfig),
+            errors.append(
+                ConfigError(f"{where}: unknown table [{key}] (known: {', '.join(sorted(known))})")
             )
-        }
-        camera = camera_config_from_table(doc.get("camera", {}), f"{where}: [camera]")
+
+    def table(build: typing.Callable[..., Any], *args: Any) -> Any:
+        try:
+            return build(*args)
+        except ConfigError as exc:
+            errors.append(exc)
+            return None
+
+    def pipeline_config() -> PipelineConfig:
+        stages = _pipeline_table(doc, where)  # may refuse a stage given twice
+        return build_dataclass(PipelineConfig, stages, f"{where}: [pipeline]")
+
+    pipeline = table(pipeline_config)
+    tables = {
+        name: table(build_dataclass, cls, doc.get(name, {}), f"{where}: [{name}]")
+        for name, cls in (
+            ("mavlink", MavlinkSettings),
+            ("daemon", DaemonConfig),
+            ("sim", SimConfig),
+            ("logging", LoggingConfig),
+        )
+    }
+    camera = table(camera_config_from_table, doc.get("camera", {}), f"{where}: [camera]")
+    if tables["mavlink"] is not None:
+        errors += _url_errors(tables["mavlink"].url, f"{where}: [mavlink]", "url", "mavlink.url")
+    try:
+        _raise_all(errors)  # the checks across tables need every table sound
         for key in ("box_feed", "box_tracking"):
             if getattr(tables["daemon"], key) and pipeline.detection.backend != "boxes":
                 raise ConfigError(
@@ -1040,13 +1151,30 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
                 "daemon.box_tracking_camera",
             )
     except ConfigError as exc:
-        msg = str(exc)
-        # Report stage keys under their own table name, as the user wrote them.
-        for name in (f.name for f in dataclasses.fields(PipelineConfig)):
-            msg = msg.replace(f"[pipeline.{name}]", f"[{name}]")
-            msg = msg.replace(f"[pipeline.{name}.", f"[{name}.")
-        raise ConfigError(msg, exc.key) from None
+        renamed = []
+        for e in exc.errors:
+            msg = str(e)
+            # Report stage keys under their own table name, as the user wrote them.
+            for name in (f.name for f in dataclasses.fields(PipelineConfig)):
+                msg = msg.replace(f"[pipeline.{name}]", f"[{name}]")
+                msg = msg.replace(f"[pipeline.{name}.", f"[{name}.")
+            renamed.append(ConfigError(msg, e.key))
+        _raise_all(renamed)
     return AppConfig(pipeline=pipeline, camera=camera, **tables)
+
+
+def _url_errors(url: str, where: str, key: str, dotted: str) -> list[ConfigError]:
+    """The error of a link URL setting (``[mavlink] url``, ``[camera] sim_url``) that is
+    not one (:func:`~tcm_companion.io.transports.check_url`: scheme, host, port, baud
+    rate, device path), as a list: empty when it is sound."""
+    from .io.transports.urls import check_url
+
+    try:
+        check_url(url)
+    except ValueError as exc:
+        why = str(exc).removeprefix(f"{url!r}: ")
+        return [ConfigError(f"{_key_at(where, key)} = {url!r} is not a link URL: {why}", dotted)]
+    return []
 
 
 def _plain(value: Any) -> Any:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from typing import Any
 
 from .. import __version__
 from . import bench, evaluate, logs, replay, service, sim
@@ -54,8 +55,23 @@ present) > built-in defaults.
 """
 
 
+class _Parser(argparse.ArgumentParser):
+    """A parser that reports arguments it does not know itself, with its own usage: the
+    command's (``tcm-companion sim export: error: unrecognized arguments: --bogus``), where
+    argparse leaves them to the top level, which printed its own usage instead. Every
+    command's parser is one (``add_subparsers`` makes its parsers of the parent's class)."""
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Any = None, namespace: Any = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed, extras
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="tcm-companion",
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -81,16 +97,34 @@ def _error_message(exc: BaseException) -> str | None:
     """What ``main`` prints for an expected error (exit 2), None for a bug (re-raised)."""
     from ..config import ConfigError
 
-    if isinstance(exc, ConfigError):
-        return f"config error: {exc}"
+    if isinstance(exc, ConfigError):  # one line per error (config check reports all)
+        return "\n".join(f"config error: {e}" for e in exc.errors)
     if isinstance(exc, OSError):
+        if exc.filename is not None and exc.strerror:  # not "[Errno 21] Is a directory: 'x'"
+            other = f" -> {exc.filename2}" if exc.filename2 is not None else ""
+            return f"error: {exc.filename}{other}: {exc.strerror}"
         return f"error: {exc}"
+    if isinstance(exc, MemoryError):  # what the bounds on sizes and durations left over
+        return (
+            f"error: out of memory ({exc or 'no detail'}): ask for less (a smaller"
+            " --resolution, a shorter --duration, fewer --frames)"
+        )
+    from ..core.detection import OnnxModelError
     from ..flightlog.reader import FlightSelectionError
     from ..io.scenario import ScenarioError
+    from ..io.transports import TransportError
     from ..logtools.convert import LogConversionError
     from ..replay.log import LogReplayError
 
-    if isinstance(exc, ScenarioError | LogConversionError | LogReplayError | FlightSelectionError):
+    if isinstance(
+        exc,
+        ScenarioError
+        | LogConversionError
+        | LogReplayError
+        | FlightSelectionError
+        | TransportError
+        | OnnxModelError,
+    ):
         return f"error: {exc}"
     return None
 
@@ -148,7 +182,7 @@ def _main(argv: list[str] | None) -> int:
         return int(getattr(args, "sigterm_status", EXIT_SIGTERM))
     except BrokenPipeError:
         raise  # stdout closed by its reader: main ends quietly, not "error: Broken pipe"
-    except (ValueError, OSError) as exc:
+    except Exception as exc:  # a bug (no message) is raised again, whole
         message = _error_message(exc)
         if message is None:
             raise

@@ -10,9 +10,9 @@ from .common import (
     add_command,
     add_config_arguments,
     add_quiet_argument,
+    bench_seconds,
     config_from_args,
     float_in,
-    positive_seconds,
     resolution,
     whole_number,
 )
@@ -37,6 +37,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
             return 2
         from ..bench.daemon import CpuQuotaError, print_daemon_bench, run_daemon_bench
 
+        # The --set the daemon will get, checked here: a bad one is this command's
+        # "config error", not a RuntimeError traceback carrying the daemon's.
+        config_from_args(args)
         try:
             result = run_daemon_bench(
                 args.duration, extra_sets=tuple(args.set), cpu_quota=args.cpu_quota
@@ -44,6 +47,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         except CpuQuotaError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        except RuntimeError as exc:  # the daemon failed: its first and last words
+            lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+            print(f"error: bench --daemon: {lines[0].rstrip(':')}: {lines[-1]}", file=sys.stderr)
+            return 1
         print_daemon_bench(result)
         return 0
     if args.cpu_quota is not None:
@@ -71,14 +78,15 @@ def add_parsers(sub: Any) -> None:
         type=resolution,
         nargs="+",
         metavar="WxH",
-        help="image sizes to time (default 360x220 900x550)",
+        help="image sizes to time, 16 to 16384 pixels a side and at most 4096x4096 pixels"
+        " (default 360x220 900x550)",
     )
     p.add_argument(
         "--frames",
-        type=whole_number(1),
+        type=whole_number(1, 100000),
         default=200,
         metavar="N",
-        help="frames timed per resolution and method (default 200)",
+        help="frames timed per resolution and method, 1 to 100000 (default 200)",
     )
     p.add_argument(
         "--mavlink",
@@ -92,10 +100,10 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=bench_seconds,
         default=60.0,
         metavar="S",
-        help="--daemon: seconds to run (default 60)",
+        help="--daemon: seconds to run, at most 3600 (default 60)",
     )
     p.add_argument(
         "--cpu-quota",

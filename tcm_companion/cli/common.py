@@ -18,6 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..sim.scene.names import MAX_FLIGHT_S
+
 if TYPE_CHECKING:
     from ..config import AppConfig
 
@@ -125,8 +127,17 @@ def progress(total: int, desc: str, enabled: bool) -> Any:
     return bar(total, desc, enabled)
 
 
+#: An image size on the command line: each side in the range of ``[camera] width`` and
+#: ``height`` ...
+RESOLUTION_SIDE_PX = (16, 16384)
+#: ... and at most this many pixels (4096x4096; 4K video is 3840x2160): the renderer and
+#: the pipeline hold several float images of this size at once.
+MAX_RESOLUTION_PX = 4096 * 4096
+
+
 def resolution(text: str) -> tuple[int, int]:
-    """``argparse`` type of an image size: ``360x220`` -> ``(360, 220)``."""
+    """``argparse`` type of an image size: ``360x220`` -> ``(360, 220)``, each side in
+    :data:`RESOLUTION_SIDE_PX` and at most :data:`MAX_RESOLUTION_PX` pixels."""
     try:
         w, h = text.lower().split("x")
         size = int(w), int(h)
@@ -136,6 +147,16 @@ def resolution(text: str) -> tuple[int, int]:
         ) from None
     if min(size) <= 0:
         raise argparse.ArgumentTypeError(f"resolution must be positive, got {text!r}")
+    lo, hi = RESOLUTION_SIDE_PX
+    if not (lo <= size[0] <= hi and lo <= size[1] <= hi):
+        raise argparse.ArgumentTypeError(
+            f"resolution must be {lo} to {hi} pixels a side, got {text!r}"
+        )
+    if size[0] * size[1] > MAX_RESOLUTION_PX:
+        raise argparse.ArgumentTypeError(
+            f"resolution must be at most {MAX_RESOLUTION_PX:,} pixels (4096x4096), got"
+            f" {text!r} ({size[0] * size[1]:,})"
+        )
     return size
 
 
@@ -152,10 +173,27 @@ def float_in(ok: Callable[[float], bool], must_be: str, what: str = "a number") 
     return parse
 
 
-#: A duration: a finite number of seconds > 0.
-positive_seconds = float_in(
-    lambda v: math.isfinite(v) and v > 0, "a positive number of seconds", "a number of seconds"
-)
+def seconds_up_to(limit_s: float, why: str) -> Any:
+    """``argparse`` type of a duration: a number of seconds in (0, ``limit_s``]; the
+    usage error says the limit and ``why`` it is there."""
+    return float_in(
+        lambda v: math.isfinite(v) and 0 < v <= limit_s,
+        f"a positive number of seconds up to {limit_s:g} ({why})",
+        "a number of seconds",
+    )
+
+
+#: A simulated flight (``sim export``, ``eval --sim``, ``demo``): at most
+#: :data:`~tcm_companion.sim.scene.names.MAX_FLIGHT_S`.
+flight_seconds = seconds_up_to(MAX_FLIGHT_S, "an hour of flight, 90000 frames")
+#: A run of the daemon that is to stop by itself (``run``, ``sitl``): at most a week
+#: (``run`` without ``--duration`` runs until stopped).
+MAX_RUN_S = 604800.0
+run_seconds = seconds_up_to(MAX_RUN_S, "a week")
+#: A measurement (``bench --daemon``): at most an hour.
+bench_seconds = seconds_up_to(3600.0, "an hour")
+#: A seed: a whole number that NumPy's seeding takes as is ([sim] seed's range).
+SEED_RANGE = (0, 2**32 - 1)
 #: A scale or a delay: a finite number >= 0.
 non_negative_number = float_in(lambda v: math.isfinite(v) and v >= 0, "a number >= 0")
 #: A finite number > 0.

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from ..sim.scene.names import SCENARIO_NAMES
 from .common import (
     CAMERA_PRESETS,
+    SEED_RANGE,
     TOOLS_HINT,
     TolerantFrames,
     add_command,
@@ -19,7 +20,7 @@ from .common import (
     add_quiet_argument,
     config_file,
     config_from_args,
-    positive_seconds,
+    flight_seconds,
     progress,
     require_inputs,
     resolution,
@@ -323,24 +324,25 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=flight_seconds,
         default=None,
         metavar="S",
-        help="seconds of each --sim flight (default: the scenario's)",
+        help="seconds of each --sim flight, at most 3600 (default: the scenario's)",
     )
     p.add_argument(
         "--seed",
-        type=whole_number(0),
+        type=whole_number(*SEED_RANGE),
         default=0,
         metavar="N",
-        help="seed of the --sim flights (turbulence, noise)",
+        help="seed of the --sim flights (turbulence, noise), 0 to 4294967295",
     )
     p.add_argument(
         "--resolutions",
         type=resolution,
         nargs="+",
         metavar="WxH",
-        help="evaluate at these image sizes (same field of view; default: the scenario's own)",
+        help="evaluate at these image sizes (same field of view; 16 to 16384 pixels a side,"
+        " at most 4096x4096 pixels; default: the scenario's own)",
     )
     p.add_argument(
         "--intervals", action="store_true", help="separation study over frame intervals 1..40"
@@ -367,17 +369,17 @@ def add_parsers(sub: Any) -> None:
     add_quiet_argument(p)
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=flight_seconds,
         default=None,
         metavar="S",
-        help="seconds per flight (default: the scenario's)",
+        help="seconds per flight, at most 3600 (default: the scenario's)",
     )
     p.add_argument(
         "--seed",
-        type=whole_number(0),
+        type=whole_number(*SEED_RANGE),
         default=0,
         metavar="N",
-        help="seed of the flights (turbulence, noise)",
+        help="seed of the flights (turbulence, noise), 0 to 4294967295",
     )
     p.add_argument(
         "--out",

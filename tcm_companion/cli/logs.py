@@ -88,6 +88,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
         print(p)
     for name, why in getattr(paths, "skipped", {}).items():
         print(f"skipped {name}: {why}", file=sys.stderr)
+    if not paths:  # every plot skipped: a file that is not a flight log, or holds nothing
+        print(f"error: {args.source}: nothing to plot (every plot skipped, above)", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -36,7 +36,7 @@ from .common import (
     config_file,
     config_from_args,
     percent,
-    positive_seconds,
+    run_seconds,
     setup_logging,
 )
 
@@ -315,12 +315,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         from ..logsetup import log_directory
 
         run_log_dir = log_directory(config, state)
-    _check_outputs(inputs, run_log_dir, args.summary_json)  # before the flight, not after
+    # found now, not after a flight of hours
+    _check_outputs(inputs, run_log_dir, args.summary_json, "[logging] directory")
+    if config.camera.source.source == "scenario":
+        try:
+            config = camera_from_scenario(config, _lens_overrides(args.set, os.environ))
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     signals = _Signals()
     ran_out: list[bool] = []  # --duration ended the run (not a signal)
 
     if config.camera.source.source == "sim":
         log.info("camera source is the simulator: flying the mock autopilot (SITL)")
+        _warn_url_ignored(config, 'with [camera] source = "sim"')
         from ..logsetup import log_directory
 
         log_dir = str(log_directory(config, state)) if config.logging.enabled else None
@@ -422,7 +430,102 @@ def cmd_run(args: argparse.Namespace) -> int:
         f" {summary.dropped}, failed {summary.failed}, rejected {summary.rejected}; {latency};"
         f" faults {summary.faults or 'none'}{feed}"
     )
-    return _Signals.exit_status(True, stopped_by, service=True)
+    silent = cameras_without_frames(summary.camera_stats)
+    for line in silent:
+        print(f"error: {line}", file=sys.stderr)
+    return _Signals.exit_status(not silent, stopped_by, service=True)
+
+
+def cameras_without_frames(camera_stats: dict[str, Any]) -> list[str]:
+    """Why each camera that delivered no frame in the whole run did not, one line each
+    (a run that saw nothing is not a success, whatever stopped it)."""
+    out = []
+    for name, s in camera_stats.items():
+        if s.delivered:
+            continue
+        if s.captured:
+            why = (
+                f"all {s.captured} images it returned were rejected ({s.rejected_empty} empty,"
+                f" {s.rejected_size} of the wrong size)"
+            )
+        elif s.open_failures:
+            why = f"it could not be opened ({s.open_failures} tries; last: {s.last_error})"
+        elif s.last_error:
+            why = f"reading failed ({s.last_error})"
+        else:
+            why = "it returned no image"
+        out.append(f"camera {name} never produced a frame: {why}")
+    return out
+
+
+def _lens_overrides(sets: list[str], environ: Any) -> dict[str, str]:
+    """The ``[camera]`` lens keys this run sets with ``--set`` or the environment, and
+    how (``{"width": "--set camera.width"}``)."""
+    from ..config import ENV_PREFIX, LENS_KEYS
+
+    out = {}
+    for name in environ:
+        parts = name.removeprefix(ENV_PREFIX).lower().split("__")
+        if name.startswith(ENV_PREFIX) and len(parts) == 2 and parts[0] == "camera":
+            if parts[1] in LENS_KEYS:
+                out[parts[1]] = f"environment {name}"
+    for item in sets:
+        table, _, key = item.partition("=")[0].strip().partition(".")
+        if table == "camera" and key in LENS_KEYS:
+            out[key] = f"--set camera.{key}"
+    return out
+
+
+def camera_from_scenario(config: AppConfig, overrides: dict[str, str]) -> AppConfig:
+    """``config`` with the camera model ``[camera] path``'s scenario declares (its
+    ``scenario.toml`` ``[camera]``): with ``source = "scenario"`` the recorded frames are
+    the camera. The configuration's own lens keys (the drone's camera) are replaced, with
+    a warning naming those that differ; a differing key this run sets itself
+    (``overrides``: ``--set``, environment) is a conflict, a ValueError naming it."""
+    from ..io.scenario import ScenarioError, load_scenario
+
+    path = config.camera.source.path
+    if not Path(path).is_dir():
+        return config  # the source says "no such directory"
+    try:
+        declared = load_scenario(path, check_frames=False).camera
+    except (ScenarioError, OSError) as exc:
+        raise ValueError(f"camera.path: {exc} (camera.source = 'scenario')") from None
+    mine, theirs = config.camera.model.to_dict(), declared.to_dict()
+    differ = [k for k in {**mine, **theirs} if mine.get(k) != theirs.get(k)]
+    what = f"{declared.model_name} {declared.width}x{declared.height}"
+    conflicts = [k for k in differ if k in overrides]
+    if conflicts:
+
+        def show(d: dict[str, Any], k: str) -> str:
+            return repr(d[k]) if k in d else "(none)"
+
+        raise ValueError(
+            f"camera.source = 'scenario': scenario {path} declares a {what} camera (its"
+            " scenario.toml [camera]), and this run sets "
+            + ", ".join(
+                f"camera.{k} = {show(mine, k)} ({overrides[k]}; the scenario's: {show(theirs, k)})"
+                for k in conflicts
+            )
+            + ": drop the override to take the scenario's camera"
+        )
+    if differ:
+        from ..config import CameraConfig
+
+        # The built-in default (or the repository's config.toml, which writes it out) is
+        # not a camera someone described: replacing it is worth a note, not a warning.
+        described = config.camera.model != CameraConfig().model
+        log.log(
+            logging.WARNING if described else logging.INFO,
+            "camera model: scenario %s declares a %s camera; the configuration's [camera]"
+            " %s are replaced by the scenario's",
+            path,
+            what,
+            ", ".join(differ),
+        )
+    else:
+        log.info("camera model: scenario %s declares a %s camera", path, what)
+    return dataclasses.replace(config, camera=dataclasses.replace(config.camera, model=declared))
 
 
 def _inputs(args: argparse.Namespace, config: AppConfig) -> list[str | None]:
@@ -434,17 +537,21 @@ def _inputs(args: argparse.Namespace, config: AppConfig) -> list[str | None]:
 
 
 def _check_outputs(
-    inputs: list[str | None], log_dir: str | Path | None, summary_json: str | None
+    inputs: list[str | None], log_dir: str | Path | None, summary_json: str | None, log_what: str
 ) -> None:
-    """The flight log's directory (files are added to it, none replaced) and the summary
-    (a summary of an earlier run is replaced, nothing else) destroy no input and are not
-    one another: :mod:`tcm_companion.io.outputs` (OutputRefused: one ``error:`` line)."""
-    from ..io.outputs import SUMMARY_JSON, check_folder, check_output
+    """The flight log's directory (made now, writable; files are added to it, none
+    replaced) and the summary (a summary of an earlier run is replaced, nothing else)
+    destroy no input and are not one another: :mod:`tcm_companion.io.outputs`
+    (OutputRefused: one ``error:`` line; the log directory's names ``log_what``)."""
+    from ..io.outputs import SUMMARY_JSON, OutputRefused, check_folder, check_output
 
     if summary_json is not None:
         check_output(summary_json, SUMMARY_JSON, force=True, inputs=inputs)
     if log_dir is not None:
-        check_folder(log_dir, inputs=inputs, others=[summary_json])
+        try:
+            check_folder(log_dir, inputs=inputs, others=[summary_json], create=True)
+        except OutputRefused as exc:
+            raise OutputRefused(f"{log_what} {exc}") from None
 
 
 def write_summary_json(
@@ -516,19 +623,36 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         config = dataclasses.replace(
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
+    _warn_url_ignored(config, "by sitl")
     from ..sitl.mock import DEFAULT_MIN_ACCURACY
 
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
-    printer = _status_printer(args.status_every)
+    printer = _status_printer(args.status_every, not args.no_status)
     if args.log is not None:
-        _check_outputs(_inputs(args, config), args.log, None)
+        _check_outputs(_inputs(args, config), args.log, None, "--log")
     signals = _Signals()
     if args.clock == "virtual":
         return _run_sitl_virtual(config, args.duration, printer, signals, args.log, min_accuracy)
     return _run_sitl_until(
         config, args.duration, printer, signals, log_dir=args.log, min_accuracy=min_accuracy
     )
+
+
+def _warn_url_ignored(config: AppConfig, when: str) -> None:
+    """Say that ``[mavlink] url`` is not used (``when``): the daemon then talks to the
+    mock autopilot in the same process, over a loopback UDP pair of its own."""
+    from ..service.endpoint_setup import MavlinkSettings
+
+    url = config.mavlink.url
+    if url != MavlinkSettings.url:
+        log.warning(
+            "[mavlink] url = %r is ignored %s: the daemon talks to the mock autopilot in this"
+            " process over loopback UDP; to fly the simulated camera against your own"
+            ' autopilot, use [camera] source = "sim_autopilot" with sim_url',
+            url,
+            when,
+        )
 
 
 def _finish(report: SitlReport, signals: _Signals, *, service: bool = False) -> int:
@@ -649,10 +773,11 @@ def add_parsers(sub: Any) -> None:
     add_log_level_argument(p)
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=run_seconds,
         default=None,
         metavar="S",
-        help="stop after S seconds (> 0; default: until SIGTERM, exit 0, or SIGINT, exit 130)",
+        help="stop after S seconds (> 0, at most a week; default: until SIGTERM, exit 0, or"
+        " SIGINT, exit 130)",
     )
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")
     _add_status_every(p)
@@ -695,10 +820,10 @@ def add_parsers(sub: Any) -> None:
     )
     p.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=run_seconds,
         default=20.0,
         metavar="S",
-        help="seconds, > 0 (default 20); SIGINT ends the run early (exit 130)",
+        help="seconds, > 0, at most a week (default 20); SIGINT ends the run early (exit 130)",
     )
     p.add_argument(
         "--clock",
@@ -718,6 +843,7 @@ def add_parsers(sub: Any) -> None:
         " warm-up is below this, or nothing was decided (default 90; 0: not judged)",
     )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
+    p.add_argument("--no-status", action="store_true", help="no status line on stderr")
     _add_status_every(p)
     p.set_defaults(func=cmd_sitl)
 

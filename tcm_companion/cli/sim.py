@@ -15,10 +15,11 @@ from ..sim.scene.names import SCENARIO_NAMES
 from .common import (
     CAMERA_PRESETS,
     FORCE_HELP,
+    SEED_RANGE,
     add_command,
-    non_negative_number,
-    positive_number,
-    positive_seconds,
+    add_quiet_argument,
+    flight_seconds,
+    float_in,
     resolution,
     whole_number,
 )
@@ -53,7 +54,9 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
             seed=args.seed,
         )
     with atomic_path(args.dir, kind=SCENARIO_DIR, force=args.force) as tmp:
-        export_scenario(sim, tmp, detections=args.detections or None)
+        export_scenario(
+            sim, tmp, progress=False if args.quiet else None, detections=args.detections or None
+        )
     print(
         f"wrote {sim.name}: {sim.n_frames} frames, {sim.camera.model_name} "
         f"{sim.camera.width}x{sim.camera.height} -> {args.dir}"
@@ -95,17 +98,17 @@ def add_mock_autopilot_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--seed",
-        type=whole_number(0),
+        type=whole_number(*SEED_RANGE),
         default=0,
         metavar="N",
-        help="seed of the turbulence and telemetry noise",
+        help="seed of the turbulence and telemetry noise, 0 to 4294967295",
     )
     parser.add_argument(
         "--noise",
-        type=non_negative_number,
+        type=float_in(lambda v: 0.0 <= v <= 100.0, "a number in [0, 100]"),
         default=1.0,
         metavar="X",
-        help="telemetry noise scale (default 1; 0: exact)",
+        help="telemetry noise scale, 0 to 100 (default 1; 0: exact)",
     )
     parser.add_argument(
         "--sysid",
@@ -116,14 +119,14 @@ def add_mock_autopilot_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--ekf-origin-delay",
-        type=non_negative_number,
+        type=float_in(lambda v: 0.0 <= v <= 600.0, "a number of seconds in [0, 600]"),
         default=3.0,
         metavar="S",
         help="seconds after boot before LOCAL_POSITION_NED exists (ArduPilot SITL: ~40)",
     )
     parser.add_argument(
         "--brake-ttc",
-        type=positive_number,
+        type=float_in(lambda v: 0.0 < v <= 3600.0, "a number of seconds in (0, 3600]"),
         default=3.0,
         metavar="S",
         help="brake on a collision-course status with time to contact below this",
@@ -159,6 +162,7 @@ def add_parsers(sub: Any) -> None:
     )
     e.add_argument("dir", help="output directory")
     e.add_argument("--force", action="store_true", help=FORCE_HELP)
+    add_quiet_argument(e)
     e.add_argument(
         "--detections",
         action="store_true",
@@ -176,21 +180,22 @@ def add_parsers(sub: Any) -> None:
         type=resolution,
         default=None,
         metavar="WxH",
-        help="image size (the same field of view; default: the camera's own)",
+        help="image size (the same field of view; 16 to 16384 pixels a side, at most"
+        " 4096x4096 pixels; default: the camera's own)",
     )
     e.add_argument(
         "--duration",
-        type=positive_seconds,
+        type=flight_seconds,
         default=None,
         metavar="S",
-        help="seconds of flight (default: the scenario's)",
+        help="seconds of flight, at most 3600 (default: the scenario's)",
     )
     e.add_argument(
         "--seed",
-        type=whole_number(0),
+        type=whole_number(*SEED_RANGE),
         default=0,
         metavar="N",
-        help="seed of the flight (turbulence, noise)",
+        help="seed of the flight (turbulence, noise), 0 to 4294967295",
     )
     e.set_defaults(func=cmd_sim_export)
     ls = add_command(

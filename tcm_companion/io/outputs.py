@@ -293,11 +293,14 @@ def check_folder(
     inputs: Iterable[PathLike | None] = (),
     others: Iterable[PathLike | None] = (),
     files: Iterable[tuple[str, OutputKind]] = (),
+    create: bool = False,
 ) -> Path:
     """A folder the command adds files to (plots, a report, flight log parts), never
     replaces: it must not be, lie inside or contain an input (nor another output), must
     be a directory if it exists (a symbolic link to one is followed), and each of
-    ``files`` (name, kind) already in it must be a file of that kind (it is replaced)."""
+    ``files`` (name, kind) already in it must be a file of that kind (it is replaced).
+    With ``create`` it is made now (with its parents) and must be writable: a folder a
+    long run writes into later (a flight log) is refused at the start, not after."""
     p = Path(path)
     _refuse_overlap(p, inputs, others)
     if os.path.lexists(p):
@@ -307,6 +310,13 @@ def check_folder(
         _check_parent(p)
     for name, kind in files:
         check_output(p / name, kind, force=True)
+    if create:
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputRefused(f"{p}: {exc.strerror or exc}") from None
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise OutputRefused(f"{p}: not writable by this user")
     return p
 
 

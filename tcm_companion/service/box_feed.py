@@ -37,6 +37,8 @@ from dataclasses import dataclass
 from ..core.camera import CameraModel
 from ..core.detection import Box
 from ..core.detection.base import wraps_around
+from ..io.transports.bind import bound_udp_socket
+from ..io.transports.urls import check_host
 
 #: The protocol's version, the datagram's ``v``.
 PROTOCOL_VERSION = 1
@@ -87,6 +89,7 @@ def parse_feed_url(url: str) -> tuple[str, int] | None:
     port = int(m["port"])
     if not 1 <= port <= 65535:
         raise ValueError(f"port must be in [1, 65535], got {port}")
+    check_host(url, m["host"])  # an address or a host name, not resolved here
     return m["host"], port
 
 
@@ -240,12 +243,13 @@ async def open_box_feed(
     if address is None:
         raise ValueError("no box feed address")
     loop = asyncio.get_running_loop()
+    # Bound here, so that a port in use is named with its holder (bound_udp_socket).
+    sock = bound_udp_socket(*address, f"[daemon] box_feed {url}")
     try:
         transport, protocol = await loop.create_datagram_endpoint(
-            lambda: BoxFeedProtocol(on_datagram), local_addr=address
+            lambda: BoxFeedProtocol(on_datagram), sock=sock
         )
-    except OSError as exc:
-        raise OSError(
-            exc.errno, f"[daemon] box_feed {url}: cannot listen: {exc.strerror}"
-        ) from None
+    except BaseException:
+        sock.close()
+        raise
     return transport, protocol

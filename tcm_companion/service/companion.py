@@ -423,7 +423,13 @@ class Companion:
         ecfg = endpoint.config
         specs.append(InputSpec("attitude", ecfg.attitude_rate_hz, config.attitude_timeout_us))
         specs.append(
-            InputSpec("position", ecfg.position_rate_hz, config.position_timeout_us, required=False)
+            InputSpec(
+                "position",
+                ecfg.position_rate_hz,
+                config.position_timeout_us,
+                required=False,
+                starts_late=True,  # the autopilot's EKF origin: "waiting for position"
+            )
         )
         # The live box feed: one input for every camera's boxes, judged alive only (a
         # detector may run at any rate).
@@ -433,6 +439,7 @@ class Companion:
                 InputSpec(BOX_FEED, max(rates), config.box_feed_timeout_us, min_rate_fraction=0.0)
             )
         self.inputs = Inputs(specs, now_mono_us)
+        self._started_mono_us = now_mono_us
         self.stats = CompanionStats()
         self.boxes = LiveBoxes(config, self.cameras, self.stats.box_feed, self.inputs, endpoint)
         self.latencies_ms: deque[float] = deque(maxlen=config.latency_window)
@@ -854,7 +861,12 @@ class Companion:
         # the objects for.
         changes = self.inputs.changes(now_mono_us)
         for name, problem in changes:
-            if problem:
+            if problem and self.inputs.condition(name) == "waiting":
+                # A start-up state (no position before the EKF origin), not a fault.
+                self.endpoint.statustext(
+                    d.MAV_SEVERITY_INFO, f"TCM: {problem}", now_mono_us, key=f"input {name}"
+                )
+            elif problem:
                 condition = self.inputs.condition(name)
                 self.stats.faults[f"{name} {condition}"] += 1
                 self.endpoint.statustext(
@@ -971,8 +983,12 @@ class Companion:
         head = f"objects {len(objs)} ({st}) | "
         if ttcs:
             head += f"TTC {min(ttcs):.1f}s | "
+        if len(self._frame_times_mono_us) < 2 and now_mono_us - self._started_mono_us < 2_000_000:
+            rate = "starting"  # no two frames yet to measure a rate on: not "0.0 fps"
+        else:
+            rate = f"{self.frame_rate_hz(now_mono_us):4.1f} fps"
         return head + (
-            f"{self.frame_rate_hz(now_mono_us):4.1f} fps | {latency}"
+            f"{rate} | {latency}"
             f" | drops {self.stats.frames_dropped}{self.boxes.status()} | "
             + ("; ".join(problems) if problems else "inputs OK")
         )

@@ -299,7 +299,12 @@ class Daemon:
             # Cameras: one reader thread each; stopped (joined) on the way out.
             on_frame = self._make_on_frame(loop)
             for cid, cam in enumerate(self.camera_inputs):
-                reader = CameraReader(cam.source, cid, on_frame, clock_us=clock.now_us)
+                # no_future: capture times on this clock, never after the read (a file
+                # read with realtime = false runs its own series ahead of the clock, and
+                # the latency came out negative).
+                reader = CameraReader(
+                    cam.source, cid, on_frame, clock_us=clock.now_us, no_future=True
+                )
                 self.readers.append(reader)
                 reader.start()
                 stack.callback(reader.stop)

@@ -9,7 +9,9 @@ when all three hold. Objects whose result needs an unhealthy input are reported
 ``unknown`` with the input's name as the reason.
 
 What is wrong with an input is its *condition* (``missing``, ``stale``, ``invalid``,
-``slow``); its *problem* is the condition as text, which may carry a number that changes
+``slow``; and ``waiting`` for an input that may come long after the start — the
+autopilot's position waits for its EKF origin — and has not come yet: a start-up state,
+not a fault); its *problem* is the condition as text, which may carry a number that changes
 while the condition holds (``camera0 slow (8 Hz, expected 25)``). A condition is one
 fault until it clears: :meth:`Inputs.changes` reports an input when its condition
 changes, not when the number in its problem does.
@@ -35,6 +37,9 @@ class InputSpec:
     min_rate_fraction: float = 0.5  # rate OK at or above this fraction of expected_hz
     window_us: int = 2_000_000  # rate measured over this window
     required: bool = True  # an unhealthy optional input is reported but does not fault
+    # May first arrive long after the start (position: the EKF origin takes seconds to
+    # minutes): until then it is "waiting for NAME", a start-up state, not "missing".
+    starts_late: bool = False
 
     def __post_init__(self) -> None:
         if not self.expected_hz > 0 or self.timeout_us <= 0 or self.window_us <= 0:
@@ -52,6 +57,7 @@ class InputStatus:
     rate_hz: float
     age_us: int | None  # since the newest message; None: never received
     expected_hz: float = 0.0  # the spec's rate (what "slow" is measured against)
+    starts_late: bool = False  # the spec's: never received yet is "waiting", not "missing"
 
     @property
     def healthy(self) -> bool:
@@ -59,10 +65,11 @@ class InputStatus:
 
     @property
     def condition(self) -> str:
-        """What is wrong, as one word that stays the same while it holds: ``missing``,
-        ``stale``, ``invalid`` or ``slow`` ("" when healthy)."""
+        """What is wrong, as one word that stays the same while it holds: ``missing``
+        (``waiting`` for an input that starts late), ``stale``, ``invalid`` or ``slow``
+        ("" when healthy)."""
         if self.age_us is None:
-            return "missing"
+            return "waiting" if self.starts_late else "missing"
         if not self.alive:
             return "stale"
         if not self.valid:
@@ -80,7 +87,14 @@ class InputStatus:
             return ""
         if condition == "slow":
             return f"{self.name} slow ({self.rate_hz:.0f} Hz, expected {self.expected_hz:g})"
+        if condition == "waiting":
+            return f"waiting for {self.name}"
         return f"{self.name} {condition}"
+
+    @property
+    def fault(self) -> bool:
+        """Whether the condition is a fault (counted, a warning); ``waiting`` is not."""
+        return bool(self.condition) and self.condition != "waiting"
 
 
 class InputMonitor:
@@ -118,7 +132,9 @@ class InputMonitor:
     def status(self, now_us: int) -> InputStatus:
         spec = self.spec
         if not self._arrivals:
-            return InputStatus(spec.name, False, False, False, 0.0, None, spec.expected_hz)
+            return InputStatus(
+                spec.name, False, False, False, 0.0, None, spec.expected_hz, spec.starts_late
+            )
         age = now_us - self._arrivals[-1]
         alive = age <= spec.timeout_us
         lo = now_us - spec.window_us
@@ -134,7 +150,9 @@ class InputMonitor:
         warming = now_us - since < spec.window_us
         rate_ok = warming or rate >= spec.min_rate_fraction * spec.expected_hz
         valid = self._last_valid
-        return InputStatus(spec.name, alive, rate_ok, valid, rate, age, spec.expected_hz)
+        return InputStatus(
+            spec.name, alive, rate_ok, valid, rate, age, spec.expected_hz, spec.starts_late
+        )
 
 
 class Inputs:

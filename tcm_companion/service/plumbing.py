@@ -359,7 +359,9 @@ class Plumbing:
             trim_heap()
         now = hc.now_mono_us
         for name, problem in hc.changes:
-            if problem:
+            if problem.startswith("waiting for "):  # a start-up state, not a fault
+                log.info("input %s: %s", name, problem)
+            elif problem:
                 log.warning("input %s: %s", name, problem)
             else:
                 log.info("input %s: OK", name)
@@ -368,7 +370,9 @@ class Plumbing:
                     topics.EVENT,
                     now,
                     {
-                        "severity": "warning" if problem else "info",
+                        "severity": "warning"
+                        if problem and not problem.startswith("waiting for ")
+                        else "info",
                         "input": name,
                         "text": problem or f"{name} OK",
                     },

@@ -67,6 +67,8 @@ class CameraStats:
     reconnects: int = 0  # successful re-opens after a loss
     ended: bool = False  # a finite source reached its end
     retimed: int = 0  # delivered frames whose t_capture_us was moved forward to stay increasing
+    last_error: str = ""  # why the last open() or read() failed ("" none yet)
+    restamped: int = 0  # no_future readers: source times after the read, taken as the read's
 
 
 class FrameSource(ABC):

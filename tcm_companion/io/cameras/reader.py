@@ -82,10 +82,12 @@ class ReaderCore:
         initial_backoff_s: float = 0.1,
         max_backoff_s: float = 2.0,
         on_state: Callable[[str, str], None] | None = None,
+        no_future: bool = False,
     ) -> None:
         if not (initial_backoff_s > 0 and max_backoff_s >= initial_backoff_s):
             raise ValueError("need 0 < initial_backoff_s <= max_backoff_s")
         self.source = source
+        self.no_future = no_future
         self.camera_id = camera_id
         self.on_state = on_state
         self.initial_backoff_s = float(initial_backoff_s)
@@ -129,6 +131,7 @@ class ReaderCore:
             else:
                 with self._lock:
                     self._stats.read_errors += 1
+                    self._stats.last_error = str(exc)
                 log.warning("camera %s: lost (%s)", src.name, exc)
                 outcome = "lost"
         except Exception as exc:
@@ -137,6 +140,7 @@ class ReaderCore:
             else:
                 with self._lock:
                     self._stats.read_errors += 1
+                    self._stats.last_error = f"read() raised {exc!r}"
                 log.warning(
                     "camera %s: read() raised %r; treated as lost", src.name, exc, exc_info=True
                 )
@@ -148,6 +152,13 @@ class ReaderCore:
                 # The source answers again: the next loss starts the backoff from the start.
                 self._backoff_s = self.initial_backoff_s
                 t_image_us = now_us if t_us is None else int(t_us)
+                if self.no_future and t_image_us > now_us:
+                    # A source's own series that runs ahead of the clock (a file read as
+                    # fast as possible, realtime = false): a frame is not captured after
+                    # it was read, so its time on this clock is the read's.
+                    t_image_us = now_us
+                    with self._lock:
+                        self._stats.restamped += 1
                 return ReaderStep(self._accept(image, t_image_us), t_image_us=t_image_us)
         self.close()
         if outcome == "stop":
@@ -169,6 +180,7 @@ class ReaderCore:
         except Exception as exc:
             with self._lock:
                 self._stats.open_failures += 1
+                self._stats.last_error = str(exc)
             log.warning(
                 "camera %s: open failed (%s); retrying in %.1f s", src.name, exc, self._backoff_s
             )
@@ -255,7 +267,10 @@ class CameraReader:
     ``frame.t_capture_us`` on the companion monotonic clock (µs): the source's time, or
     ``clock_us()`` taken right after ``read()`` returned when the source gives None.
     Capture times are strictly increasing (a source time not after the previous frame's
-    is moved to previous + 1 µs and counted in ``stats.retimed``) and ``frame.seq``
+    is moved to previous + 1 µs and counted in ``stats.retimed``); with ``no_future`` (the
+    daemon's readers) never later than the read (a source time after ``clock_us()`` at
+    the read is taken as that, counted in ``stats.restamped``: a file read as fast as
+    possible has a series of times of its own, ahead of the clock) and ``frame.seq``
     counts delivered frames 0, 1, 2, … across reconnects.
 
     ``on_state(camera_name, state)`` is called on transitions between ``"open"``,
@@ -272,6 +287,7 @@ class CameraReader:
         initial_backoff_s: float = 0.1,
         max_backoff_s: float = 2.0,
         on_state: Callable[[str, str], None] | None = None,
+        no_future: bool = False,
     ) -> None:
         self.core = ReaderCore(
             source,
@@ -279,6 +295,7 @@ class CameraReader:
             initial_backoff_s=initial_backoff_s,
             max_backoff_s=max_backoff_s,
             on_state=on_state,
+            no_future=no_future,
         )
         self.source = source
         self.camera_id = camera_id

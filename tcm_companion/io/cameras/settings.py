@@ -248,7 +248,9 @@ def _file(
         raise CameraError(f"camera.path: no such file {s.path!r} (camera.source = 'file')")
     from .opencv import VideoFileSource
 
-    return VideoFileSource(s.path, cam.width, cam.height, realtime=s.realtime, loop=s.loop)
+    return _probed(
+        VideoFileSource(s.path, cam.width, cam.height, realtime=s.realtime, loop=s.loop), s
+    )
 
 
 def _frames(
@@ -258,9 +260,23 @@ def _frames(
         raise CameraError(f"camera.path: no such directory {s.path!r} (camera.source = 'frames')")
     from .frames_dir import FramesDirSource
 
-    return FramesDirSource(
-        s.path, cam.width, cam.height, realtime=s.realtime, fps=s.fps, loop=s.loop
+    return _probed(
+        FramesDirSource(s.path, cam.width, cam.height, realtime=s.realtime, fps=s.fps, loop=s.loop),
+        s,
     )
+
+
+def _probed(src: FrameSource, s: CameraSettings) -> FrameSource:
+    """``src`` (a file or a directory: nothing to wait for) once it has been opened and
+    closed again, which reads its first frame: a file OpenCV cannot decode, or a directory
+    without images, is refused now like a missing one, rather than retried for ever."""
+    try:
+        src.open()
+    except CameraError as exc:
+        raise CameraError(f"camera.path: {exc} (camera.source = {s.source!r})") from None
+    finally:
+        src.close()
+    return src
 
 
 def _scenario(

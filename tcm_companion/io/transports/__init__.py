@@ -42,6 +42,7 @@ from .errors import (
 )
 from .memory import MemoryTransport, memory_pair
 from .reconnect import ReconnectingTransport
+from .urls import check_url
 
 __all__ = [
     "DEFAULT_MAX_RX_BYTES",
@@ -55,6 +56,7 @@ __all__ = [
     "TransportOpenError",
     "TransportTimeout",
     "TransportURLError",
+    "check_url",
     "memory_pair",
     "open_transport",
 ]

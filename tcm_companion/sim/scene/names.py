@@ -7,6 +7,10 @@ one line what each shows); ``docs/simulator.md`` lists them.
 
 from __future__ import annotations
 
+#: The longest simulated flight, s: an hour, 90 000 frames at 25 fps (a flight's plan
+#: and truth are arrays of all its frames, held at once).
+MAX_FLIGHT_S = 3600.0
+
 #: The paper's flights and the traps around them (red balls only).
 PAPER_SCENARIO_NAMES: tuple[str, ...] = (
     "TS",

@@ -45,7 +45,7 @@ import numpy as np
 
 from ...core.camera import Equirectangular
 from ...core.frames import FloatArray
-from .names import OBJECT_SCENARIO_NAMES, SCENARIO_NAMES
+from .names import MAX_FLIGHT_S, OBJECT_SCENARIO_NAMES, SCENARIO_NAMES
 from .names import PAPER_SCENARIO_NAMES as PAPER_SCENARIO_NAMES  # re-exported
 from .world import (
     COLOURS,
@@ -378,8 +378,10 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
     if key in OBJECT_SCENARIO_NAMES:
         return _object_plan(key, duration_s, seed)
     duration = float(duration_s) if duration_s is not None else _DEFAULT_DURATION_S[key]
-    if not duration > 0:
-        raise ValueError(f"duration_s must be positive, got {duration_s!r}")
+    if not 0 < duration <= MAX_FLIGHT_S:
+        raise ValueError(
+            f"duration_s must be positive and at most {MAX_FLIGHT_S:g} s, got {duration_s!r}"
+        )
     rng = np.random.default_rng(np.random.SeedSequence([31337, seed]))
     yaw_terms, roll_terms, pitch_terms = _attitude_terms(rng)
     wobble = _wobble(rng)
@@ -519,8 +521,10 @@ def _dark_building(
 def _object_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
     """The design of one of ``OBJECT_SCENARIO_NAMES`` (see :func:`flight_plan`)."""
     duration = float(duration_s) if duration_s is not None else _OBJECT_DURATION_S.get(key, 40.0)
-    if not duration > 0:
-        raise ValueError(f"duration_s must be positive, got {duration_s!r}")
+    if not 0 < duration <= MAX_FLIGHT_S:
+        raise ValueError(
+            f"duration_s must be positive and at most {MAX_FLIGHT_S:g} s, got {duration_s!r}"
+        )
     rng = np.random.default_rng(np.random.SeedSequence([31337, seed]))
     yaw_terms, roll_terms, pitch_terms = _attitude_terms(rng)
     wobble = _wobble(rng)

@@ -159,11 +159,18 @@ async def run_mock_autopilot(
             try:
                 data = finished.result()
             except LinkDown:
-                # A reconnecting link: wait for it rather than give up.
+                # A reconnecting link: wait for it rather than give up, but not past a
+                # stop (SIGINT, SIGTERM): waiting on regardless, a link that never came up
+                # (no such device) left only SIGKILL to end the command.
                 wait_connected = getattr(transport, "wait_connected", None)
                 if wait_connected is None:
                     break
-                await wait_connected()
+                connected = asyncio.ensure_future(wait_connected())
+                await asyncio.wait({connected, stop_task}, return_when=asyncio.FIRST_COMPLETED)
+                if not connected.done():
+                    connected.cancel()
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await connected
                 continue
             except TransportClosed:
                 log.info("link closed")
@@ -232,9 +239,9 @@ def run_from_args(args: argparse.Namespace) -> int:
     try:
         config = config_from_args(args)
         ap = asyncio.run(_serve_until_signal(args.connect, config))
-    except (TransportError, ValueError, OSError) as exc:
-        print(f"mock-autopilot: {exc}", file=sys.stderr)
-        return 1
+    except (TransportError, ValueError, OSError) as exc:  # a bad URL, a port in use
+        print(f"mock-autopilot: error: {exc}", file=sys.stderr)
+        return 2
     received = len(ap.received_status)
     problems = sum(1 for r in ap.received_status if not r.ok)
     print(

@@ -850,7 +850,7 @@ HOSTILE = [
     (["export", "junk.mcap", "--scenario", "out"], "error: junk.mcap: "),
     (["export", "emptydir", "--scenario", "out"], "holds no flight log"),
     (["import", "file.txt", "--log", "o.mcap"], "not a directory"),
-    (["plot", "junk.mcap", "--out", "pl"], "junk.mcap: nothing to plot"),
+    (["plot", "junk.mcap", "--out", "pl"], "junk.mcap: not an MCAP file"),
     (["plot", "emptydir", "--out", "pl"], "scenario.toml: missing"),
     (["sim", "export", "TS", "/proc/nowhere", "--duration", "0.2"], "No such file or directory"),
     (["bench", "--resolutions", "0x0"], "resolution must be positive"),
@@ -926,3 +926,22 @@ def test_mock_autopilot_stops_on_sigterm_while_its_link_is_down(tmp_path: Path) 
             proc.wait()
     assert proc.returncode == 0
     assert out.startswith("mock autopilot: 0 status messages received")
+
+
+def test_plot_of_a_flight_log_that_holds_nothing_to_plot_is_an_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A flight log with its metadata and nothing else (a run stopped at once): every plot
+    is skipped, and that is exit 2 with one line, not a success with no picture."""
+    from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+
+    writer = FlightLogWriter(LoggingConfig(), tmp_path / "log")
+    writer.start({"config": "{}"})
+    writer.stop()
+    rc = cli.main(["plot", str(tmp_path / "log"), "--out", str(tmp_path / "pl")])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert [ln for ln in err.splitlines() if ln.startswith("error:")] == [
+        f"error: {tmp_path / 'log'}: nothing to plot (every plot skipped, above)"
+    ]
+    assert not list((tmp_path / "pl").glob("*.png"))

@@ -290,3 +290,24 @@ def test_ctrl_c_before_the_run_starts_is_one_line_and_130(
     monkeypatch.setattr(service, "config_from_args", interrupted)
     assert command("sitl", "--clock", "virtual") == 130
     assert capsys.readouterr().err.strip() == "interrupted (SIGINT)"
+
+
+@pytest.mark.xdist_group("sitl")
+def test_run_with_the_simulator_writes_its_summary_json(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``run --summary-json`` with ``[camera] source = "sim"`` (the repository's
+    config.toml) flies the mock autopilot in-process; the summary was silently not
+    written (exit 0, no file)."""
+    import json
+
+    where = tmp_path / "summary.json"
+    rc = command(
+        *("run", "--duration", "2", "--status-every", "0", "--log-level", "ERROR"),
+        *("--set", "camera.source=sim", "--set", "logging.enabled=false"),
+        *("--set", f"daemon.state_dir={tmp_path / 'state'}", "--summary-json", str(where)),
+    )
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    doc = json.loads(where.read_text())
+    assert doc["processed"] > 0 and doc["frames_balance"] is True, doc

@@ -343,6 +343,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             state_dir=str(state),
             log_dir=log_dir,
             min_accuracy=None,
+            summary_json=(
+                None
+                if args.summary_json is None
+                else lambda summary: write_summary_json(
+                    args.summary_json, summary, inputs=inputs, others=[log_dir]
+                )
+            ),
         )
 
     async def main_flight(printer: _StatusPrinter | None) -> DaemonSummary | int:
@@ -724,10 +731,12 @@ def _run_sitl_until(
     signals: _Signals,
     *,
     service: bool = False,
+    summary_json: Callable[[DaemonSummary], None] | None = None,
     **kwargs: Any,
 ) -> int:
     """SITL on uvloop until ``duration_s`` or SIGINT/SIGTERM; prints the report.
-    ``service``: ``run`` (SIGTERM is its normal stop, exit 0)."""
+    ``service``: ``run`` (SIGTERM is its normal stop, exit 0); ``summary_json`` writes
+    the daemon's summary (``run --summary-json``)."""
 
     async def main(on_status: _StatusPrinter | None) -> SitlReport:
         import asyncio
@@ -747,6 +756,8 @@ def _run_sitl_until(
 
     with printer as on_status:
         report = _run_loop(lambda: main(on_status))
+    if summary_json is not None:
+        summary_json(report.summary)
     return _finish(report, signals, service=service)
 
 

@@ -121,3 +121,19 @@ def test_a_configured_value_the_old_parameter_range_refused_is_used(tmp_path: Pa
     assert warnings == []
     used = config_with_params(pipeline, ep.params.values)
     assert (used.classifier.interval_s, used.classifier.hold_s) == (3.0, 2.5)
+
+
+def test_a_second_corrupt_param_file_does_not_replace_the_first_set_aside(tmp_path: Path) -> None:
+    """Each damaged file is kept: the second goes to ``.corrupt.1`` (it replaced the
+    first ``.corrupt``, whatever it held, before)."""
+    path = tmp_path / "params.json"
+    for text in ("{first", "{second", "{third"):
+        path.write_text(text)
+        assert ParamStore(path).load() == {}
+        assert not path.exists()
+    kept = {p.name: p.read_text() for p in tmp_path.iterdir()}
+    assert kept == {
+        "params.json.corrupt": "{first",
+        "params.json.corrupt.1": "{second",
+        "params.json.corrupt.2": "{third",
+    }

@@ -35,6 +35,25 @@ def atomic_write(path: Path, data: bytes, mode: int = 0o600) -> None:
     os.replace(tmp, path)
 
 
+def _set_aside(path: Path) -> Path:
+    """Move ``path`` to ``NAME.corrupt`` (``NAME.corrupt.1``, ... when an earlier one is
+    there: a second damaged file never replaces the first); the new name."""
+    for n in range(1000):
+        aside = path.with_name(path.name + ".corrupt" + (f".{n}" if n else ""))
+        try:
+            os.link(path, aside)  # fails if aside exists: nothing is ever replaced
+        except FileExistsError:
+            continue
+        except OSError:  # no hard links here (vfat): look, then rename
+            if os.path.lexists(aside):
+                continue
+            os.rename(path, aside)
+            return aside
+        os.unlink(path)
+        return aside
+    raise FileExistsError(f"{path}: 1000 files set aside beside it already")
+
+
 class ParamStore:
     """Parameter values as JSON (``{"TCM_THRESH": 0.09, ...}``)."""
 
@@ -55,8 +74,7 @@ class ParamStore:
             if any(not math.isfinite(v) for v in values.values()):
                 raise ValueError("non-finite value")
         except ValueError as exc:
-            aside = self.path.with_name(self.path.name + ".corrupt")
-            os.replace(self.path, aside)
+            aside = _set_aside(self.path)
             self.warnings.append(f"{self.path}: {exc}; moved to {aside}, using defaults")
             return {}
         return values

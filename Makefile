@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
 UV     := uv==0.13.9
 
-.PHONY: run demo test test-tools lint typecheck venv lock lua32 clean eval bench interop-env
+.PHONY: run demo test test-adversarial test-tools lint typecheck venv lock lua32 clean eval bench interop-env
 
 venv: $(STAMP)
 
@@ -105,6 +105,13 @@ test-tools: $(STAMP)
 test: lint typecheck test-tools
 	$(BIN)/python -m compileall -q tcm_companion
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+
+## What an attacker or a careless user tries, each asserting nothing was lost: outputs over
+## inputs, devices, FIFOs and symlinks; signals mid-write; a full disk; two flights in one
+## directory; a spoofing peer on the link (and beside ArduCopter SITL when it is built);
+## hostile box datagrams. About a minute of one core (also part of make test).
+test-adversarial: $(STAMP)
+	$(BIN)/python -m pytest -m adversarial -n 2 --dist loadgroup -q
 
 eval: $(STAMP)
 	$(BIN)/tcm-companion eval --sim TS T45 T90 --out out/eval

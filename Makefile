@@ -109,7 +109,7 @@ test: lint typecheck test-tools
 ## What an attacker or a careless user tries, each asserting nothing was lost: outputs over
 ## inputs, devices, FIFOs and symlinks; signals mid-write; a full disk; two flights in one
 ## directory; a spoofing peer on the link (and beside ArduCopter SITL when it is built);
-## hostile box datagrams. About a minute of one core (also part of make test).
+## hostile box datagrams. 71 s on two cores (also part of make test).
 test-adversarial: $(STAMP)
 	$(BIN)/python -m pytest -m adversarial -n 2 --dist loadgroup -q
 

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from ..core.camera import CameraModel
 from ..core.detection import Box
 from ..core.detection.base import wraps_around
-from ..io.transports.bind import bound_udp_socket
+from ..io.transports.bind import bound_datagram_endpoint
 from ..io.transports.urls import check_host
 
 #: The protocol's version, the datagram's ``v``.
@@ -242,14 +242,7 @@ async def open_box_feed(
     address = parse_feed_url(url)
     if address is None:
         raise ValueError("no box feed address")
-    loop = asyncio.get_running_loop()
     # Bound here, so that a port in use is named with its holder (bound_udp_socket).
-    sock = bound_udp_socket(*address, f"[daemon] box_feed {url}")
-    try:
-        transport, protocol = await loop.create_datagram_endpoint(
-            lambda: BoxFeedProtocol(on_datagram), sock=sock
-        )
-    except BaseException:
-        sock.close()
-        raise
-    return transport, protocol
+    return await bound_datagram_endpoint(
+        lambda: BoxFeedProtocol(on_datagram), *address, f"[daemon] box_feed {url}"
+    )

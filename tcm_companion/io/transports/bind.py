@@ -8,10 +8,15 @@ holds it when this user may see it (Linux ``/proc``; elsewhere just "in use").
 
 from __future__ import annotations
 
+import asyncio
 import errno
 import os
 import socket
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
+
+_P = TypeVar("_P", bound=asyncio.DatagramProtocol)
 
 
 def bound_udp_socket(host: str, port: int, what: str = "") -> socket.socket:
@@ -37,6 +42,21 @@ def bound_udp_socket(host: str, port: int, what: str = "") -> socket.socket:
         raise _error(exc.errno, f"{head}cannot listen on {host}:{port}: {why}") from None
     sock.setblocking(False)
     return sock
+
+
+async def bound_datagram_endpoint(
+    protocol_factory: Callable[[], _P], host: str, port: int, what: str = ""
+) -> tuple[asyncio.DatagramTransport, _P]:
+    """``loop.create_datagram_endpoint`` listening on ``host:port``, on a socket bound
+    by :func:`bound_udp_socket` (its errors; the socket is closed if asyncio fails)."""
+    sock = bound_udp_socket(host, port, what)
+    try:
+        return await asyncio.get_running_loop().create_datagram_endpoint(
+            protocol_factory, sock=sock
+        )
+    except BaseException:
+        sock.close()
+        raise
 
 
 def _error(number: int | None, message: str) -> OSError:

@@ -20,7 +20,7 @@ import socket
 from typing import Any
 
 from .base import Transport
-from .bind import bound_udp_socket
+from .bind import bound_datagram_endpoint
 from .urls import parse_host_port
 
 # Kernel receive buffer to ask for: bursts of telemetry should not overflow the
@@ -86,14 +86,9 @@ class UdpTransport(Transport):
         loop = asyncio.get_running_loop()
         if self.listen:
             # Bound here: a port in use is named with its holder, not "could not bind".
-            sock = bound_udp_socket(self.host, self.port)
-            try:
-                transport, _ = await loop.create_datagram_endpoint(
-                    lambda: _DatagramProtocol(self), sock=sock
-                )
-            except BaseException:
-                sock.close()
-                raise
+            transport, _ = await bound_datagram_endpoint(
+                lambda: _DatagramProtocol(self), self.host, self.port
+            )
         else:
             transport, _ = await loop.create_datagram_endpoint(
                 lambda: _DatagramProtocol(self), remote_addr=(self.host, self.port)

@@ -729,7 +729,8 @@ class FailingFile:
         return getattr(self._fh, name)
 
 
-def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def failing_disk(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
+    """Every part the writer opens fails its writes with ENOSPC while ``["on"]`` is set."""
     broken = {"on": False}
     real_open = FlightLogWriter._open_stream
     monkeypatch.setattr(
@@ -737,6 +738,11 @@ def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.Mo
         "_open_stream",
         lambda self, path: FailingFile(real_open(self, path), broken),
     )
+    return broken
+
+
+def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    broken = failing_disk(monkeypatch)
     w, events = writer_with_events(tmp_path, retry_interval_s=0.1)
     img = noise_image(4)
     calls = 0
@@ -892,13 +898,7 @@ def test_a_full_disk_is_counted_as_dropped_disk_and_leaves_no_empty_parts(
     full, frames are dropped (disk), not (error); the retries leave no empty parts behind
     (each used to leave one, ``-001``, ``-002`` ...); once there is room again the log
     goes on in a new part."""
-    broken = {"on": False}
-    real_open = FlightLogWriter._open_stream
-    monkeypatch.setattr(
-        FlightLogWriter,
-        "_open_stream",
-        lambda self, path: FailingFile(real_open(self, path), broken),
-    )
+    broken = failing_disk(monkeypatch)
     free = {"bytes": 10**12}
     w, events = writer_with_events(
         tmp_path, retry_interval_s=0.05, free_bytes=lambda p: free["bytes"]
@@ -948,13 +948,7 @@ def test_a_write_that_fails_inside_a_chunk_counts_every_item(
     the item being written and those pending in the chunk are each counted once, as
     dropped (disk). (An item was left uncounted, and a deterministic run, which waits for
     the counts to add up, hung in ``wait_drained``.)"""
-    broken = {"on": False}
-    real_open = FlightLogWriter._open_stream
-    monkeypatch.setattr(
-        FlightLogWriter,
-        "_open_stream",
-        lambda self, path: FailingFile(real_open(self, path), broken),
-    )
+    broken = failing_disk(monkeypatch)
     w = FlightLogWriter(
         LoggingConfig(chunk_size_bytes=1024, flush_interval_s=60.0),
         tmp_path,

@@ -23,7 +23,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Callable, Coroutine, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -44,7 +44,9 @@ if TYPE_CHECKING:
     import asyncio
 
     from ..config import AppConfig
+    from ..flightlog.handle import FlightLog
     from ..service.plumbing import DaemonSummary
+    from ..service.runner import StartLog
     from ..sitl.mock import SitlReport
 
 log = logging.getLogger("tcm_companion")
@@ -357,7 +359,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         from ..io.cameras.base import CameraError
         from ..io.cameras.settings import open_source
-        from ..service.daemon import CameraInput, Daemon
+        from ..service.daemon import CameraInput
         from ..sim.sources import register_sim_sources
 
         register_sim_sources()  # source = "sim_autopilot" is the simulator's
@@ -377,44 +379,41 @@ def cmd_run(args: argparse.Namespace) -> int:
                 stop.set()
 
             asyncio.get_running_loop().call_later(args.duration, time_up)
-        from ..io.aio import monotonic_us
         from ..io.persist import SigningKeyError
-        from ..service.endpoint_setup import make_endpoint, persist
+        from ..service.runner import open_service
 
         # The camera is expected at the rate it is set to ([camera] fps).
         cameras = [CameraInput(cam.name, cam.model, source, fps=cam.source.fps)]
-        try:
-            endpoint, warnings = make_endpoint(config.mavlink, monotonic_us(), config.pipeline)
-        except SigningKeyError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        for w in warnings:
-            log.warning("%s", w)
-        flight_log = None
+        start_log: StartLog | None = None
         if config.logging.enabled:
             from ..logsetup import log_directory, start_flight_log
 
             log_dir = log_directory(config, state)
-            # The parameters in force at start (persisted ones included): replay needs them.
-            flight_log = start_flight_log(config, log_dir, cameras, dict(endpoint.params.values))
-            log.info("flight log in %s", log_dir)
-        daemon = Daemon(
-            config,
-            cameras,
-            endpoint=endpoint,
-            persist_params=True,
-            notifier=notifier,
-            watchdog_interval_us=wd_us,
-            on_status=printer,
-            flight_log=flight_log,
-        )
+
+            def start_log_in_dir(params: Mapping[str, float]) -> FlightLog:
+                # The parameters in force at start (persisted ones included): replay
+                # needs them.
+                flight_log = start_flight_log(config, log_dir, cameras, params)
+                log.info("flight log in %s", log_dir)
+                return flight_log
+
+            start_log = start_log_in_dir
+
         try:
-            return await daemon.run(stop)
-        finally:
-            if flight_log is not None:
-                await asyncio.to_thread(flight_log.stop)  # drains the queue; off the loop
-            with contextlib.suppress(OSError):
-                persist(config.mavlink, endpoint)
+            async with open_service(
+                config,
+                cameras,
+                state_dir=state,
+                start_log=start_log,
+                persist_changes=True,
+                notifier=notifier,
+                watchdog_interval_us=wd_us,
+                on_status=printer,
+            ) as service:
+                return await service.run(stop)
+        except SigningKeyError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
 
     with _status_printer(args.status_every, not args.no_status) as printer:
         summary = _run_loop(lambda: main_flight(printer))

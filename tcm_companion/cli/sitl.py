@@ -40,7 +40,7 @@ if TYPE_CHECKING:
 
     from ..config import AppConfig
     from ..service.plumbing import DaemonSummary
-    from ..sitl.mock import SitlReport
+    from ..sitl.mock_flight import SitlReport
 
 log = logging.getLogger("tcm_companion")
 
@@ -66,7 +66,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
             config, sim=dataclasses.replace(config.sim, scenario=args.scenario)
         )
     warn_url_ignored(config, "by sitl")
-    from ..sitl.mock import DEFAULT_MIN_ACCURACY
+    from ..sitl.mock_flight import DEFAULT_MIN_ACCURACY
 
     pct = 100.0 * DEFAULT_MIN_ACCURACY if args.min_accuracy is None else args.min_accuracy
     min_accuracy = None if pct <= 0 else pct / 100.0
@@ -115,7 +115,7 @@ def _run_sitl_virtual(
     min_accuracy: float | None,
 ) -> int:
     """``sitl --clock virtual``: no event loop; SIGINT/SIGTERM end the simulation early."""
-    from ..sitl.mock import run_sitl_virtual
+    from ..sitl.mock_flight import run_sitl_virtual
 
     stop = threading.Event()
     with printer as on_status, signals.installed(stop.set):
@@ -174,7 +174,7 @@ def run_sitl_until(
     the daemon's summary (``run --summary-json``)."""
 
     async def main(on_status: StatusPrinter | None, stop: asyncio.Event) -> SitlReport:
-        from ..sitl.mock import run_sitl
+        from ..sitl.mock_flight import run_sitl
 
         return await run_sitl(
             config,

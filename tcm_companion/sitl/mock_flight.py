@@ -1,4 +1,5 @@
-"""SITL: the mock autopilot, a camera rendered from its true state, and the companion.
+"""A SITL flight against the mock autopilot: a camera rendered from its true state, the
+companion, and the flight scored and reported.
 
 Two clocks:
 

@@ -20,8 +20,8 @@ from collections.abc import Callable, Iterator
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from tcm_companion.mavlink.copter_modes import COPTER_MODES
 from tcm_companion.sim.vehicle.ardupilot_sitl import (
-    COPTER_MODES,
     ArduPilotSitl,
     MavlinkTcpClient,
     Message,

@@ -89,8 +89,9 @@ from typing import Any, TypeVar
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from ...mavlink.copter_modes import mode_name, mode_number
+
 __all__ = [
-    "COPTER_MODES",
     "DEFAULT_HOME",
     "ENV_BINARY",
     "ENV_DEFAULTS",
@@ -106,8 +107,6 @@ __all__ = [
     "StatusText",
     "find_binary",
     "find_defaults",
-    "mode_name",
-    "mode_number",
     "serial_port",
     "skip_reason",
 ]
@@ -122,37 +121,6 @@ _SHARED_SITL = REPO_ROOT.parent / "shared" / "ardupilot-sitl"
 
 #: ArduPilot's SITL test site (CMAC, Canberra): lat_deg, lon_deg, alt_m AMSL, heading_deg
 DEFAULT_HOME: tuple[float, float, float, float] = (-35.363261, 149.165230, 584.0, 353.0)
-
-#: ArduCopter custom_mode numbers (ArduCopter/mode.h)
-COPTER_MODES: dict[str, int] = {
-    "STABILIZE": 0,
-    "ACRO": 1,
-    "ALT_HOLD": 2,
-    "AUTO": 3,
-    "GUIDED": 4,
-    "LOITER": 5,
-    "RTL": 6,
-    "CIRCLE": 7,
-    "LAND": 9,
-    "DRIFT": 11,
-    "SPORT": 13,
-    "FLIP": 14,
-    "AUTOTUNE": 15,
-    "POSHOLD": 16,
-    "BRAKE": 17,
-    "THROW": 18,
-    "AVOID_ADSB": 19,
-    "GUIDED_NOGPS": 20,
-    "SMART_RTL": 21,
-    "FLOWHOLD": 22,
-    "FOLLOW": 23,
-    "ZIGZAG": 24,
-    "SYSTEMID": 25,
-    "AUTOROTATE": 26,
-    "AUTO_RTL": 27,
-    "TURTLE": 28,
-}
-_MODE_NAMES = {number: name for name, number in COPTER_MODES.items()}
 
 #: SERIALn -> tcp port offset for instance 0 (``-I N`` adds 10 N)
 _SERIAL_PORT_BASE = {0: 5760, 1: 5762, 2: 5763}
@@ -271,20 +239,6 @@ class ModeChange:
     @property
     def name(self) -> str:
         return mode_name(self.mode)
-
-
-def mode_number(mode: str | int) -> int:
-    """ArduCopter custom_mode for a name (``"GUIDED"``) or a number."""
-    if isinstance(mode, int):
-        return mode
-    try:
-        return COPTER_MODES[mode.upper()]
-    except KeyError:
-        raise ValueError(f"unknown ArduCopter mode {mode!r}") from None
-
-
-def mode_name(mode: int) -> str:
-    return _MODE_NAMES.get(mode, str(mode))
 
 
 def _msg_id(msg_type: str | int) -> int:

@@ -90,6 +90,7 @@ from typing import Any, TypeVar
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from ...mavlink.copter_modes import mode_name, mode_number
+from ...mavlink.statustext import StatustextAssembler
 
 __all__ = [
     "DEFAULT_HOME",
@@ -307,7 +308,7 @@ class MavlinkTcpClient:
         self._latest: dict[str, Received] = {}
         self._latest_by_source: dict[tuple[str, int, int], Received] = {}
         self._statustexts: list[StatusText] = []
-        self._chunks: dict[tuple[int, int, int], tuple[float, list[str]]] = {}
+        self._statustext_chunks = StatustextAssembler()
         self._heartbeats: deque[Heartbeat] = deque(maxlen=10_000)
         self._mode_changes: list[ModeChange] = []
         self._counts: dict[str, int] = {}
@@ -453,22 +454,11 @@ class MavlinkTcpClient:
             self._cond.notify_all()
 
     def _record_statustext(self, t_s: float, msg: Message, sysid: int, compid: int) -> None:
-        """One :class:`StatusText` per text: chunks (``id`` != 0, ``chunk_seq`` 0, 1, ...; texts
-        over 50 characters) are joined, the last being the one shorter than 50."""
-        text = msg.text
-        chunk_id = getattr(msg, "id", 0)
-        if chunk_id == 0:
-            self._statustexts.append(StatusText(t_s, msg.severity, text, sysid, compid))
-            return
-        key = (sysid, compid, chunk_id)
-        first_t_s, parts = self._chunks.pop(key, (t_s, []))
-        parts.append(text)
-        if len(text) < 50:
-            self._statustexts.append(
-                StatusText(first_t_s, msg.severity, "".join(parts), sysid, compid)
-            )
-        else:
-            self._chunks[key] = (first_t_s, parts)
+        """One :class:`StatusText` per text (chunks joined, :class:`StatustextAssembler`)."""
+        whole = self._statustext_chunks.add(msg, t_s)
+        if whole is not None:
+            first_t_s, text = whole
+            self._statustexts.append(StatusText(first_t_s, msg.severity, text, sysid, compid))
 
     # -- sending -----------------------------------------------------------------------------
 

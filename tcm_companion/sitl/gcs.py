@@ -3,18 +3,16 @@
 :class:`GcsClient` is a :class:`~tcm_companion.mavlink.gcs.GroundStation` (framing,
 records, periodic senders; time is ``time.monotonic()`` s) run on a transport of
 :mod:`tcm_companion.io.transports` (``tcp:HOST:PORT`` to a SITL's SERIALn, or any other
-URL), reopened with backoff when the connection drops (an autopilot reboot), by one
-background thread with its own asyncio loop. The caller's side is blocking: :meth:`send`
-from any thread, the ``wait_*`` methods (woken after each received batch), and the
-ground station's commands to the autopilot (COMMAND_LONG with its COMMAND_ACK, parameters
-read and set through PARAM_VALUE, message intervals).
+URL), reopened with backoff when the connection drops (an autopilot reboot), by a
+:class:`~tcm_companion.io.link_thread.LinkThread` (the autopilot camera's link runs on one
+too). The caller's side is blocking: :meth:`send` from any thread, the ``wait_*``
+methods (woken after each received batch), and the ground station's commands to the
+autopilot (COMMAND_LONG with its COMMAND_ACK, parameters read and set through
+PARAM_VALUE, message intervals).
 """
 
 from __future__ import annotations
 
-import asyncio
-import concurrent.futures
-import contextlib
 import math
 import re
 import threading
@@ -22,15 +20,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
-from ..io.transports import (
-    RECONNECTABLE,
-    LinkDown,
-    Transport,
-    TransportClosed,
-    TransportError,
-    TransportTimeout,
-    open_transport,
-)
+from ..io.link_thread import LinkThread
+from ..io.transports import TransportError
 from ..mavlink import tcm_dialect as dialect
 from ..mavlink.gcs import GroundStation, Message, Received, StatusText, message_id
 from .errors import SitlError, SitlTimeout
@@ -38,8 +29,6 @@ from .errors import SitlError, SitlTimeout
 __all__ = ["GcsClient"]
 
 T = TypeVar("T")
-
-_SEND_TIMEOUT_S = 3.0  # a send from the caller's thread waits this long for the loop
 
 
 class GcsClient(GroundStation):
@@ -67,6 +56,17 @@ class GcsClient(GroundStation):
         history: int = 50_000,
         name: str = "",
     ) -> None:
+        self.url = url
+        self.name = name or url
+        self._send_lock = threading.Lock()  # frames leave in the order they were numbered
+        self._link = LinkThread(  # started below, once the ground station is there
+            url,
+            on_data=lambda data: self.receive_data(data, time.monotonic()),
+            on_tick=self._tick,
+            initial_backoff_s=0.05,
+            max_backoff_s=0.5,
+            name=f"mavlink {self.name}",
+        )
         super().__init__(
             source_system=source_system,
             source_component=source_component,
@@ -77,20 +77,10 @@ class GcsClient(GroundStation):
             history=history,
             now_s=time.monotonic(),
         )
-        self.url = url
-        self.name = name or url
-        self.dropped_sends = 0
-        self._transport: Any = None  # the (reconnecting) transport, once open
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stop: asyncio.Event | None = None
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
-        self._send_lock = threading.Lock()  # frames leave in the order they were numbered
-        self._thread = threading.Thread(target=self._run, name=f"mavlink {self.name}", daemon=True)
-        self._thread.start()
-        if not self._ready.wait(5.0) or self._error is not None:
-            self.close()
-            raise SitlError(f"cannot open {self.name}: {self._error or 'the link did not start'}")
+        try:
+            self._link.start()
+        except TransportError as exc:
+            raise SitlError(f"cannot open {self.name}: {exc}") from exc
         if connect_timeout_s is not None:
             try:
                 self.wait_for(lambda: self.connected, connect_timeout_s, "the connection")
@@ -102,116 +92,46 @@ class GcsClient(GroundStation):
 
     @property
     def connected(self) -> bool:
-        transport = self._transport
-        if transport is None:
-            return False
-        return bool(getattr(transport, "connected", transport.is_open))
+        return self._link.connected
 
     @property
     def disconnects(self) -> int:
         """How many times the connection was lost (e.g. by a reboot)."""
-        transport = self._transport
-        return int(transport.stats["links_lost"]) if transport is not None else 0
+        return self._link.links_lost
 
-    def _run(self) -> None:
-        try:
-            asyncio.run(self._main())
-        except BaseException as exc:  # a bug of ours: make it visible to the caller
-            self._error = self._error or exc
-        finally:
-            self._ready.set()
+    @property
+    def dropped_sends(self) -> int:
+        """Frames not sent: the link was down, or the write failed."""
+        return self._link.send_errors
 
-    async def _main(self) -> None:
-        self._loop = asyncio.get_running_loop()
-        self._stop = asyncio.Event()
-        try:
-            backoff: dict[str, Any] = {}
-            if self.url.partition(":")[0] in RECONNECTABLE:
-                backoff = {"initial_backoff_s": 0.05, "max_backoff_s": 0.5}
-            transport = open_transport(self.url, reconnect=True, **backoff)
-            await transport.open()
-        except Exception as exc:
-            self._error = exc
-            return
-        self._transport = transport
-        self._ready.set()
-        tasks = [
-            asyncio.create_task(self._stop.wait()),
-            asyncio.create_task(self._receive(transport)),
-            asyncio.create_task(self._transmit(transport)),
-        ]
-        try:
-            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            for t in tasks:
-                t.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            await transport.close()
-
-    async def _receive(self, transport: Transport) -> None:
-        while True:
-            try:
-                data = await transport.recv()
-            except LinkDown:
-                wait_connected = getattr(transport, "wait_connected", None)
-                if wait_connected is None:
-                    return
-                with contextlib.suppress(TransportTimeout):
-                    await wait_connected()
-                continue
-            except TransportClosed:
-                return
-            self.receive_data(data, time.monotonic())
-
-    async def _transmit(self, transport: Transport) -> None:
-        while True:
-            for frame in self.poll(time.monotonic()):
-                if not await self._send(frame):
-                    if not transport.is_open:
-                        return
-            now = time.monotonic()
-            await asyncio.sleep(max(0.0, self.next_deadline_s(now) - now))
-
-    async def _send(self, frame: bytes) -> bool:
-        transport = self._transport
-        if transport is None or not self.connected:
-            self.dropped_sends += 1
-            return False
-        try:
-            await transport.send(frame)
-        except TransportError:  # down (reconnecting), closed, or a write timeout
-            self.dropped_sends += 1
-            return False
-        return True
+    def _tick(self) -> tuple[list[bytes], float]:
+        now = time.monotonic()
+        return self.poll(now), self.next_deadline_s(now) - now
 
     # -- sending -----------------------------------------------------------------------------
 
     def send(self, msg: Message) -> bool:
         """Send a message built with ``client.mav.<name>_encode(...)``; False if not connected."""
         with self._send_lock:
-            return self._submit(self.encode(msg))
+            return self._link.send(self.encode(msg))
 
     def send_bytes(self, data: bytes) -> bool:
         """Send frames encoded elsewhere (e.g. by another system's codec); False if not
         connected."""
         with self._send_lock:
-            return self._submit(data)
+            return self._link.send(data)
 
-    def _submit(self, data: bytes) -> bool:
-        loop = self._loop
-        if loop is None or not self.connected:
-            self.dropped_sends += 1
-            return False
-        if threading.current_thread() is self._thread:
-            loop.create_task(self._send(data))
-            return True
-        future = asyncio.run_coroutine_threadsafe(self._send(data), loop)
-        try:
-            return future.result(_SEND_TIMEOUT_S)
-        except (concurrent.futures.TimeoutError, concurrent.futures.CancelledError, RuntimeError):
-            future.cancel()
-            self.dropped_sends += 1
-            return False
+    def set_periodic(
+        self,
+        key: str,
+        rate_hz: float,
+        factory: Callable[[], Message | None],
+        first_s: float | None = None,
+    ) -> None:
+        """:meth:`GroundStation.set_periodic`, sent from the I/O thread (the first one now
+        unless ``first_s``)."""
+        super().set_periodic(key, rate_hz, factory, first_s)
+        self._link.wake()
 
     # -- waiting -----------------------------------------------------------------------------
 
@@ -358,12 +278,7 @@ class GcsClient(GroundStation):
 
     def close(self) -> None:
         """Stop the I/O thread and close the transport (idempotent)."""
-        loop, stop = self._loop, self._stop
-        if loop is not None and stop is not None:
-            with contextlib.suppress(RuntimeError):  # the loop already closed
-                loop.call_soon_threadsafe(stop.set)
-        if self._thread.is_alive() and self._thread is not threading.current_thread():
-            self._thread.join(timeout=2.0)
+        self._link.stop()
 
     def __enter__(self) -> GcsClient:
         return self

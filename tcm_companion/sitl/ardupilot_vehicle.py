@@ -55,13 +55,13 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Iterable, Mapping, Sequence
-from pathlib import Path
+from collections.abc import Mapping
+from typing import Any
 
 from ..mavlink import tcm_dialect as dialect
 from ..mavlink.copter_modes import mode_name, mode_number
 from ..mavlink.gcs import Message
-from .ardupilot_process import DEFAULT_HOME, ArduPilotProcess
+from .ardupilot_process import ArduPilotProcess
 from .errors import SitlError, SitlTimeout
 from .gcs import GcsClient
 
@@ -84,7 +84,8 @@ _EKF_USING_GPS = re.compile(r"EKF\d IMU\d is using GPS")
 class ArduPilotSitl(ArduPilotProcess):
     """A running ArduCopter SITL and a ground-station link to it. Use as a context manager.
 
-    The process arguments are :class:`.ArduPilotProcess`'s. ``streams_hz``: message name ->
+    ``process``: :class:`.ArduPilotProcess`'s keyword arguments (``params``, ``scripts``,
+    ``binary``, ``speedup``, ``workdir`` ...). ``streams_hz``: message name ->
     rate asked for on the ground-station link at boot. ``real_time``: set SIM_SPEEDUP to 1
     once the EKF uses GPS. ``boot_timeout_s``: how long the EKF may take to use GPS.
     """
@@ -99,38 +100,12 @@ class ArduPilotSitl(ArduPilotProcess):
     def __init__(
         self,
         *,
-        params: Mapping[str, float] | None = None,
-        scripts: Iterable[str | Path] = (),
-        script_texts: Mapping[str, str] | None = None,
-        binary: str | Path | None = None,
-        defaults: str | Path | None = None,
-        first_instance: int | None = None,
-        instance_count: int = 80,
-        speedup: float = 10.0,
         real_time: bool = True,
-        home: Sequence[float] = DEFAULT_HOME,
-        model: str = "+",
-        workdir: str | Path | None = None,
-        keep_workdir: bool = False,
         streams_hz: Mapping[str, float] | None = None,
         boot_timeout_s: float = 60.0,
-        die_with_parent: bool | None = None,
+        **process: Any,
     ) -> None:
-        super().__init__(
-            params=params,
-            scripts=scripts,
-            script_texts=script_texts,
-            binary=binary,
-            defaults=defaults,
-            first_instance=first_instance,
-            instance_count=instance_count,
-            speedup=speedup,
-            home=home,
-            model=model,
-            workdir=workdir,
-            keep_workdir=keep_workdir,
-            die_with_parent=die_with_parent,
-        )
+        super().__init__(**process)
         self.real_time = real_time
         self.streams_hz = dict(self.DEFAULT_STREAMS_HZ if streams_hz is None else streams_hz)
         self.boot_timeout_s = boot_timeout_s

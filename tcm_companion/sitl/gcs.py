@@ -34,8 +34,11 @@ T = TypeVar("T")
 class GcsClient(GroundStation):
     """A MAVLink 2 client at ``url`` as system ``source_system``/``source_component``.
 
-    One I/O thread reads the transport, records every message and runs the periodic
-    senders (its own HEARTBEAT at 1 Hz unless ``heartbeat_type`` is None). :meth:`send`
+    ``station``: :class:`GroundStation`'s keyword arguments (``source_system`` 255,
+    ``source_component`` 190, ``heartbeat_type`` ``MAV_TYPE_GCS``, ``target_system``/
+    ``target_component`` (1, 1), ``history`` ...). One I/O thread reads the transport,
+    records every message and runs the periodic senders (its own HEARTBEAT at 1 Hz unless
+    ``heartbeat_type`` is None; a new one goes out within 50 ms). :meth:`send`
     may be called from any thread. When the connection drops it reconnects by itself;
     sends in between are dropped and counted in :attr:`dropped_sends`. The constructor
     waits up to ``connect_timeout_s`` for the connection (:class:`SitlError` without
@@ -46,15 +49,9 @@ class GcsClient(GroundStation):
         self,
         url: str,
         *,
-        source_system: int = 255,
-        source_component: int = dialect.MAV_COMP_ID_MISSIONPLANNER,
-        heartbeat_type: int | None = dialect.MAV_TYPE_GCS,
-        heartbeat_rate_hz: float = 1.0,
-        target_system: int = 1,
-        target_component: int = 1,
         connect_timeout_s: float | None = 10.0,
-        history: int = 50_000,
         name: str = "",
+        **station: Any,
     ) -> None:
         self.url = url
         self.name = name or url
@@ -67,16 +64,7 @@ class GcsClient(GroundStation):
             max_backoff_s=0.5,
             name=f"mavlink {self.name}",
         )
-        super().__init__(
-            source_system=source_system,
-            source_component=source_component,
-            heartbeat_type=heartbeat_type,
-            heartbeat_rate_hz=heartbeat_rate_hz,
-            target_system=target_system,
-            target_component=target_component,
-            history=history,
-            now_s=time.monotonic(),
-        )
+        super().__init__(now_s=time.monotonic(), **station)
         try:
             self._link.start()
         except TransportError as exc:
@@ -120,18 +108,6 @@ class GcsClient(GroundStation):
         connected."""
         with self._send_lock:
             return self._link.send(data)
-
-    def set_periodic(
-        self,
-        key: str,
-        rate_hz: float,
-        factory: Callable[[], Message | None],
-        first_s: float | None = None,
-    ) -> None:
-        """:meth:`GroundStation.set_periodic`, sent from the I/O thread (the first one now
-        unless ``first_s``)."""
-        super().set_periodic(key, rate_hz, factory, first_s)
-        self._link.wake()
 
     # -- waiting -----------------------------------------------------------------------------
 

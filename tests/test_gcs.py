@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import socket
+import threading
+
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
 from tcm_companion.mavlink.copter_modes import COPTER_MODES
 from tcm_companion.mavlink.gcs import GroundStation, message_id
 from tcm_companion.mavlink.statustext import statustext_messages
+from tcm_companion.sitl.gcs import GcsClient
 
 
 def _copter_heartbeat(ap: MavlinkCodec, mode: str, armed: bool) -> bytes:
@@ -64,3 +68,33 @@ def test_records_the_targets_modes_and_whole_statustexts() -> None:
     assert gs.first_message("HEARTBEAT", 1.2, src=(1, 1)).t_s == 2.0
     assert gs.latest("HEARTBEAT").t_s == 3.0 and gs.latest("HEARTBEAT", (1, 191)).t_s == 1.5
     assert len(gs.messages("HEARTBEAT", since_s=1.5)) == 3 and gs.bad_data == 0
+
+
+def test_the_gcs_client_commands_an_autopilot_over_udp_and_ends_its_thread() -> None:
+    """GcsClient end to end on a real transport: heartbeat out, the autopilot's mode in,
+    a command answered by its COMMAND_ACK; close() ends the link's thread."""
+    ap = MavlinkCodec(1, 1)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.settimeout(5.0)
+        port = sock.getsockname()[1]
+        with GcsClient(f"udpout:127.0.0.1:{port}", name="gcs under test") as gcs:
+            data, peer = sock.recvfrom(4096)
+            assert [m.get_type() for m in ap.feed(data)] == ["HEARTBEAT"]
+            sock.sendto(_copter_heartbeat(ap, "GUIDED", armed=True), peer)
+            gcs.wait_for(lambda: gcs.mode == COPTER_MODES["GUIDED"], 5.0, "GUIDED")
+
+            def autopilot() -> None:  # answers the first COMMAND_LONG
+                while True:
+                    for msg in ap.feed(sock.recvfrom(4096)[0]):
+                        if msg.get_type() == "COMMAND_LONG":
+                            ack = ap.mav.command_ack_encode(msg.command, d.MAV_RESULT_ACCEPTED)
+                            sock.sendto(ap.encode(ack), peer)
+                            return
+
+            answering = threading.Thread(target=autopilot)
+            answering.start()
+            assert gcs.set_message_interval("ATTITUDE", 10.0) == d.MAV_RESULT_ACCEPTED
+            answering.join(5.0)
+            assert gcs.armed is True and gcs.dropped_sends == 0
+    assert not [t for t in threading.enumerate() if t.name == "mavlink gcs under test"]

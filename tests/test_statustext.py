@@ -17,7 +17,15 @@ def _over_the_wire(msgs: list[object], system: int = 1, component: int = 191) ->
 
 
 def test_chunked_and_short_texts_come_back_whole_at_their_first_chunks_time() -> None:
-    texts = ["short", "x" * TEXT_BYTES, "y" * (TEXT_BYTES + 1), "z" * 120]
+    texts = [
+        "short",
+        "x" * TEXT_BYTES,
+        "y" * (TEXT_BYTES + 1),
+        "z" * 120,
+        # A whole number of full chunks: only an empty last chunk can say the text ended.
+        "w" * (2 * TEXT_BYTES),
+        "v" * (3 * TEXT_BYTES),
+    ]
     assembler = StatustextAssembler()
     out = []
     for i, text in enumerate(texts):

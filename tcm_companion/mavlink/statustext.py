@@ -36,12 +36,16 @@ class _Text:
 
 def statustext_messages(severity: int, text: str, now_us: int) -> list[Any]:
     """The STATUSTEXT message(s) of one text: one, or MAVLink 2 chunks (same id,
-    increasing ``chunk_seq``, the last one NUL-terminated by the encoder's padding)."""
+    increasing ``chunk_seq``, the last one NUL-terminated by the encoder's padding; a text
+    of a whole number of full chunks ends with an empty chunk, or no receiver could tell
+    that it ended)."""
     data = text.encode("utf-8", "replace")
     if len(data) <= TEXT_BYTES:
         return [d.MAVLink_statustext_message(severity, data, 0, 0)]
     msg_id = (now_us // 1000) & 0xFFFF or 1
     chunks = [data[i : i + TEXT_BYTES] for i in range(0, len(data), TEXT_BYTES)]
+    if len(chunks[-1]) == TEXT_BYTES:
+        chunks.append(b"")
     return [
         d.MAVLink_statustext_message(severity, chunk, msg_id, seq)
         for seq, chunk in enumerate(chunks)

@@ -133,8 +133,8 @@ def _run_sitl_virtual(
 
 def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
     """``sitl --autopilot ardupilot``: real ArduCopter SITL with the applet, one flight."""
-    from ..sim.vehicle.ardupilot_sitl import skip_reason
     from ..sitl.ardupilot import SCENES
+    from ..sitl.ardupilot_process import skip_reason
 
     scene = (args.scenario or "CROSSING").lower()
     if scene not in SCENES:

@@ -6,4 +6,7 @@
   clock (``sitl --clock virtual``).
 - :mod:`.ardupilot` — with real ArduCopter SITL and the Lua applet
   (``sitl --autopilot ardupilot``).
+- real ArduCopter SITL itself: :mod:`.ardupilot_process` (the binary, its instance and
+  process), :mod:`.gcs` (the ground-station client: :mod:`tcm_companion.mavlink.gcs` on a
+  transport), :mod:`.ardupilot_vehicle` (booting and flying it), :mod:`.errors`.
 """

@@ -325,7 +325,7 @@ def test_run_whose_camera_never_produced_a_frame_fails_at_the_end(tmp_path: Path
 
 
 def test_a_camera_whose_every_image_was_rejected_never_produced_a_frame() -> None:
-    from tcm_companion.cli.service import cameras_without_frames
+    from tcm_companion.cli.run import cameras_without_frames
     from tcm_companion.io.cameras.base import CameraStats
 
     stats = {
@@ -397,7 +397,7 @@ def test_run_on_a_scenario_takes_its_camera_model_and_says_so(tmp_path: Path) ->
 
 
 def test_the_scenario_camera_replaces_the_configured_one(caplog: pytest.LogCaptureFixture) -> None:
-    from tcm_companion.cli.service import camera_from_scenario
+    from tcm_companion.cli.scenario_camera import camera_from_scenario
     from tcm_companion.io.scenario import load_scenario
 
     declared = load_scenario(EXAMPLE_PINHOLE, check_frames=False).camera

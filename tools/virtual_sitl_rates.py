@@ -31,7 +31,7 @@ import numpy as np
 from tcm_companion.config import AppConfig
 from tcm_companion.io.cameras.base import FrameSource
 from tcm_companion.sim.scene.truth_camera import SimulatedCamera
-from tcm_companion.sitl.mock import run_sitl_virtual
+from tcm_companion.sitl.mock_flight import run_sitl_virtual
 
 
 class LossyCamera(FrameSource):

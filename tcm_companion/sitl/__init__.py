@@ -1,6 +1,6 @@
 """SITL: the daemon flown against a simulated vehicle, scored against the simulator's truth.
 
-- :mod:`.mock` — with the mock autopilot, in real time or on the virtual clock
+- :mod:`.mock_flight` — a flight with the mock autopilot, in real time or on the virtual clock
   (``tcm-companion sitl``, ``run`` with ``[camera] source = "sim"``), and the report.
 - :mod:`.virtual` — the virtual-time driver: mock, camera and companion on one simulated
   clock (``sitl --clock virtual``).

@@ -35,7 +35,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,8 +48,8 @@ from ..io.transports import open_transport
 from ..io.truth import match_truth
 from ..mavlink.copter_modes import mode_name, mode_number
 from ..mavlink.endpoint import CompanionEndpoint
-from ..service.daemon import CameraInput, Daemon, DaemonSummary
-from ..service.endpoint_setup import make_endpoint, resolve_state_paths
+from ..service.daemon import CameraInput, DaemonSummary
+from ..service.runner import open_service
 from ..sim.scene.autopilot_camera import AutopilotSimCamera, Launch, SceneSettings
 from .ardupilot_vehicle import ArduPilotSitl
 
@@ -411,29 +411,28 @@ async def daemon_on_sitl(
     **daemon_kwargs: Any,
 ) -> AsyncIterator[tuple[asyncio.Task[DaemonSummary], CompanionEndpoint]]:
     """The daemon on the SITL's SERIAL1 with ``camera``, its state in ``state_dir``, as it
-    runs on a drone: yields its task and endpoint; stopped (and its link closed) on exit.
-    The task's result is the run's summary, or the exception that ended it."""
-    settings = resolve_state_paths(config.mavlink, state_dir)
-    endpoint, warnings = make_endpoint(settings, monotonic_us(), config.pipeline)
-    for w in warnings:
-        log.warning("%s", w)
+    runs on a drone: yields its task and endpoint; stopped (its state persisted, its link
+    closed) on exit. The task's result is the run's summary, or the exception that ended
+    it."""
     link = open_transport(sitl.serial1_url)
     await link.open()
     cam = config.camera
-    daemon = Daemon(
-        replace(config, mavlink=settings),
-        [CameraInput(cam.name, cam.model, camera)],
-        transport=link,
-        endpoint=endpoint,
-        **daemon_kwargs,
-    )
-    stop = asyncio.Event()
-    task = asyncio.create_task(daemon.run(stop), name="daemon")
     try:
-        yield task, endpoint
+        async with open_service(
+            config,
+            [CameraInput(cam.name, cam.model, camera)],
+            state_dir=state_dir,
+            transport=link,
+            **daemon_kwargs,
+        ) as service:
+            stop = asyncio.Event()
+            task = asyncio.create_task(service.run(stop), name="daemon")
+            try:
+                yield task, service.endpoint
+            finally:
+                stop.set()
+                await asyncio.wait([task])
     finally:
-        stop.set()
-        await asyncio.wait([task])
         await link.close()
 
 

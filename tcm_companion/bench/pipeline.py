@@ -19,6 +19,7 @@ import numpy as np
 from ..config import AppConfig
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult, Pipeline, PipelineConfig
+from ..io.detector_model import read_detector_model
 from ..replay.scenario import with_method
 
 STAGES = ("telemetry", "detect", "flow", "track", "classify", "bsm", "total")
@@ -32,8 +33,10 @@ class _CpuTimedPipeline(Pipeline):
     reported beside them (the ``cpu`` column): what a frame costs, whatever the load.
     """
 
-    def __init__(self, camera: CameraModel, config: PipelineConfig) -> None:
-        super().__init__(camera, config)
+    def __init__(
+        self, camera: CameraModel, config: PipelineConfig, detector_model: bytes | None
+    ) -> None:
+        super().__init__(camera, config, detector_model=detector_model)
         self.cpu_ms: list[float] = []
 
     def step(self, frame: np.ndarray, frame_time_us: int) -> FrameResult:
@@ -81,7 +84,11 @@ def _time_method(
                     time.sleep(gap_s)
                 yield f
 
-    pipe = _CpuTimedPipeline(sim.camera, config.pipeline)  # type: ignore[attr-defined]
+    pipe = _CpuTimedPipeline(
+        sim.camera,  # type: ignore[attr-defined]
+        config.pipeline,
+        read_detector_model(config.pipeline.detection),
+    )
     rows: dict[str, list[float]] = {s: [] for s in STAGES}
     for k, result in enumerate(run_replay(_Frozen(), config, pipe)):
         if k < 30:  # warm-up: caches, first tracks, first full interval

@@ -369,12 +369,15 @@ class Companion:
         *,
         camera_rates_hz: Sequence[float] | None = None,
         pipeline_timer: Callable[[], float] | None = None,
+        detector_model: bytes | None = None,
     ) -> None:
         """``camera_rates_hz``: the frame rate each camera is set to (the application's
         ``[camera] fps``; default :data:`DEFAULT_CAMERA_HZ` each): a camera is ``slow``
         below half of its own. ``pipeline_timer`` is what the pipelines time their stages
         with (seconds; default ``time.perf_counter``); the virtual-time SITL passes its
-        own so that nothing it records depends on the machine's speed."""
+        own so that nothing it records depends on the machine's speed. ``detector_model``:
+        the bytes of the ``onnx`` backend's model file (the driver reads it; None for the
+        other backends), kept for the pipelines' rebuilds."""
         if not cameras:
             raise ValueError("at least one camera is needed")
         rates = (
@@ -408,6 +411,7 @@ class Companion:
         self._timer_kw: dict[str, Callable[[], float]] = (
             {"timer": pipeline_timer} if pipeline_timer is not None else {}
         )
+        self._detector_model = detector_model
         names = list(camera_names) if camera_names else [f"camera{i}" for i in range(len(cameras))]
         # One telemetry buffer for every camera: attitude at each frame's capture time
         # through the TIMESYNC mapping, one clock fit.
@@ -458,7 +462,13 @@ class Companion:
         self._log_behind_reported = 0
 
     def _new_pipeline(self, model: CameraModel) -> Pipeline:
-        return Pipeline(model, self.pipeline_config, telemetry=self.telemetry, **self._timer_kw)
+        return Pipeline(
+            model,
+            self.pipeline_config,
+            telemetry=self.telemetry,
+            detector_model=self._detector_model,
+            **self._timer_kw,
+        )
 
     # -- inputs -----------------------------------------------------------------------------
     def on_frame(
@@ -785,9 +795,7 @@ class Companion:
 
     def _rebuild(self, cam: _Camera) -> None:
         # The shared telemetry keeps the attitude history and clock fit.
-        cam.pipeline = Pipeline(
-            cam.model, self.pipeline_config, telemetry=self.telemetry, **self._timer_kw
-        )
+        cam.pipeline = self._new_pipeline(cam.model)
         cam.consecutive_errors = 0
         self.stats.pipeline_rebuilds += 1
 

@@ -44,6 +44,7 @@ import cv2
 from ..core.pipeline import FrameResult, PipelineConfig
 from ..io.aio import MONOTONIC, LoopClock
 from ..io.cameras.base import Frame
+from ..io.detector_model import read_detector_model
 from ..io.transports import Transport, TransportError, open_transport
 from ..mavlink.endpoint import CompanionEndpoint
 from .box_feed import open_box_feed
@@ -266,6 +267,7 @@ class Daemon:
                 daemon_cfg,
                 [c.name for c in self.camera_inputs],
                 camera_rates_hz=[c.fps for c in self.camera_inputs],
+                detector_model=read_detector_model(self.config.pipeline.detection),
             )
             mavlink_cfg = self.config.mavlink
             ep = endpoint

@@ -901,27 +901,6 @@ def _check_ranges(
     _raise_all(errors)
 
 
-def _range_of(table: str, key: str) -> tuple[str, bool] | None:
-    """The :data:`RANGES` key of ``key`` written in ``[table]``, and whether it was
-    written in degrees for a field in radians."""
-    if f"{table}.{key}" in RANGES:
-        return f"{table}.{key}", False
-    if key.endswith("_deg") and f"{table}.{key[:-4]}_rad" in RANGES:
-        return f"{table}.{key[:-4]}_rad", True
-    return None
-
-
-def describe_range(key: str) -> str | None:
-    """The valid range of setting ``"table.key"`` as config.toml states it
-    (``"classifier.min_theta_deg"`` -> ``"[0, 90) deg"``); None for a key without one."""
-    table, _, name = key.rpartition(".")
-    found = _range_of(table.removeprefix("pipeline."), name)
-    if found is None:
-        return None
-    spec = RANGES[found[0]]
-    return spec.text() if isinstance(spec, PerItem) else spec.text(deg=found[1])
-
-
 def _pipeline_table(doc: dict[str, Any], where: str) -> dict[str, Any]:
     """The flat TOML layout ([pipeline] plus one table per stage) as one nested table."""
     table = dict(doc.get("pipeline", {}))

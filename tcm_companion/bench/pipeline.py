@@ -46,9 +46,11 @@ class _CpuTimedPipeline(Pipeline):
         return result
 
 
-def _frames(
+def rendered_frames(
     resolution: tuple[int, int], n_frames: int
 ) -> tuple[object, list[tuple[int, int, np.ndarray]]]:
+    """The simulated T90 flight at ``resolution`` (width, height px) and its first
+    ``n_frames`` + 30 rendered frames ``(index, t_us, BGR image)``, for timing."""
     from ..sim import make_scenario
 
     sim = make_scenario("T90", duration_s=(n_frames + 30) / 25.0, seed=0)
@@ -58,7 +60,7 @@ def _frames(
     return sim, list(sim.iter_frames())
 
 
-def _time_method(
+def time_stages(
     config: AppConfig,
     sim: object,
     frames: list[tuple[int, int, np.ndarray]],
@@ -116,15 +118,15 @@ def run_bench(
         "resolution  method  " + "  ".join(f"{s:>13}" for s in (*STAGES, "cpu")),
     ]
     for res in resolutions:
-        sim, frames = _frames(res, n_frames)
+        sim, frames = rendered_frames(res, n_frames)
         # One untimed pass first: the first run in a process pays one-off costs (heap
         # growth, OpenCV and numpy internals) that would otherwise land on one method.
-        _time_method(config, sim, frames[:60])
+        time_stages(config, sim, frames[:60])
         medians = {}
         cpu = {}
         for method in ("tcm", "ecm", "fused", "bsm"):
             cfg = with_method(config, method)
-            t = _time_method(cfg, sim, frames)
+            t = time_stages(cfg, sim, frames)
             medians[method] = float(np.median(t["total"]))
             cpu[method] = float(np.median(t["cpu"]))
             cells = [

@@ -284,7 +284,7 @@ class Plumbing:
                     except OSError as exc:
                         log.warning("cannot persist parameters: %s", exc)
             elif isinstance(out, HealthChecked):
-                self._health_checked(out)
+                self.health_checked(out)
 
     def bytes_to_send(self, now_mono_us: int) -> bytes:
         """What the Companion has for the link, logged as written at ``now_mono_us``."""
@@ -351,7 +351,11 @@ class Plumbing:
             out.camera_id, out.result.t_us, annotation_circles(out.result, model)
         )
 
-    def _health_checked(self, hc: HealthChecked) -> None:
+    def health_checked(self, hc: HealthChecked) -> None:
+        """The Companion's once-a-second health check ran: input changes logged, the
+        watchdog pinged (or withheld), the health record logged, the status shown.
+        ``health_checks`` counts the calls (the first is about 1 s into the run; tools
+        that measure the steady state wrap this method to start after start-up)."""
         self.health_checks += 1
         if self.health_checks in (1, 5):
             # Start-up is over (imports, renderer or camera set-up, first frames): return

@@ -33,7 +33,8 @@ from .core.camera import (
 from .core.pipeline import PipelineConfig
 from .flightlog.writer import LoggingConfig
 from .io.cameras.settings import CameraSettings
-from .service.companion import DaemonConfig
+from .service.daemon_config import RANGES as DAEMON_RANGES
+from .service.daemon_config import DaemonConfig
 from .service.endpoint_setup import MavlinkSettings
 
 log = logging.getLogger(__name__)
@@ -549,27 +550,7 @@ RANGES: dict[str, RangeSpec] = {
             "statustext_queue": "[1, 1000] texts",
         },
     ),
-    **_ranges(
-        "daemon",
-        {
-            "attitude_lead_max_us": "[1, 1000000] µs",
-            "attitude_wait_max_us": "[1, 1000000] µs",  # and >= attitude_lead_max_us
-            "camera_timeout_us": "[10000, 60000000] µs",
-            "attitude_timeout_us": "[10000, 60000000] µs",
-            "position_timeout_us": "[10000, 60000000] µs",
-            "health_interval_us": "[10000, 60000000] µs",
-            "rebuild_after_errors": "[1, 100000] frames",
-            "latency_window": "[1, 100000] frames",
-            "opencv_threads": "[0, 1024] threads",  # 0: OpenCV's default
-            "gil_switch_interval_us": "[1, 1000000] µs",
-            # A frame waits this long for its boxes at most (docs/box-feed.md); a second
-            # is 25 frames at 25 Hz.
-            "box_wait_max_us": "[1, 1000000] µs",
-            "box_feed_timeout_us": "[10000, 60000000] µs",
-            "box_tracking_camera": "[0, 255]",  # an index into the cameras
-            "box_tracking_latency_us": "[0, 1000000] µs",
-        },
-    ),
+    **_ranges("daemon", DAEMON_RANGES),  # the service keeps them (service/daemon_config.py)
     **_ranges(
         "sim",
         {
@@ -1114,21 +1095,11 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
         errors += _url_errors(tables["mavlink"].url, f"{where}: [mavlink]", "url", "mavlink.url")
     try:
         _raise_all(errors)  # the checks across tables need every table sound
-        for key in ("box_feed", "box_tracking"):
-            if getattr(tables["daemon"], key) and pipeline.detection.backend != "boxes":
-                raise ConfigError(
-                    f'{where}: [daemon] {key} needs [detection] backend = "boxes" (it is'
-                    f" {pipeline.detection.backend!r}): the feed's boxes are that backend's"
-                    " input",
-                    f"daemon.{key}",
-                )
-        tracking_camera = tables["daemon"].box_tracking_camera
-        if tables["daemon"].box_tracking and tracking_camera > 0:
-            raise ConfigError(
-                f"{where}: [daemon] box_tracking_camera = {tracking_camera} is not a camera:"
-                " the daemon runs one ([camera], index 0)",
-                "daemon.box_tracking_camera",
-            )
+        # The daemon runs one camera ([camera], index 0).
+        problem = tables["daemon"].feed_problem(pipeline.detection.backend, 1)
+        if problem is not None:
+            key, why = problem
+            raise ConfigError(f"{where}: [daemon] {why}", f"daemon.{key}")
     except ConfigError as exc:
         renamed = []
         for e in exc.errors:

@@ -48,7 +48,8 @@ from ..io.detector_model import read_detector_model
 from ..io.transports import Transport, TransportError, open_transport
 from ..mavlink.endpoint import CompanionEndpoint
 from .box_feed import open_box_feed
-from .companion import Companion, DaemonConfig
+from .companion import Companion
+from .daemon_config import DaemonConfig
 from .endpoint_setup import MavlinkSettings, make_endpoint, persist
 from .plumbing import CameraInput, DaemonSummary, NotifierLike, Plumbing
 

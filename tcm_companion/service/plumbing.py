@@ -33,15 +33,9 @@ from ..flightlog import topics
 from ..io.allocator import trim_heap
 from ..io.cameras.base import CameraStats, Frame, FrameSource
 from ..mavlink import tcm_dialect as d
-from .companion import (
-    Companion,
-    CompanionStats,
-    FrameProcessed,
-    HealthChecked,
-    Output,
-    ParamsChanged,
-    latency_percentile_ms,
-)
+from .companion import Companion
+from .health import CompanionStats, latency_percentile_ms
+from .outputs import FrameProcessed, HealthChecked, Output, ParamsChanged
 
 if TYPE_CHECKING:
     from ..flightlog.handle import FlightLog
@@ -164,7 +158,7 @@ class DaemonSummary:
         )
 
     def latency_percentile_ms(self, q: float) -> float:
-        """:func:`~.companion.latency_percentile_ms` of the run's latencies."""
+        """:func:`~.health.latency_percentile_ms` of the run's latencies."""
         return latency_percentile_ms(self.latencies_ms, q)
 
 

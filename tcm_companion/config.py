@@ -31,7 +31,7 @@ from .core.camera import (
     lens_range_text,
 )
 from .core.pipeline import PipelineConfig
-from .flightlog.writer import LoggingConfig
+from .flightlog.settings import LoggingConfig
 from .io.cameras.settings import CameraSettings
 from .service.daemon_config import RANGES as DAEMON_RANGES
 from .service.daemon_config import DaemonConfig

@@ -41,7 +41,8 @@ import tomli_w
 from ..core.camera import CameraModel, CameraModelError, camera_from_dict
 from ..flightlog import reader, topics
 from ..flightlog.docs import annotation_circles, result_doc
-from ..flightlog.writer import FlightLogWriter, LoggingConfig
+from ..flightlog.settings import LoggingConfig
+from ..flightlog.writer import FlightLogWriter
 from ..io.scenario import FORMAT, FRAMES_HEADER, ScenarioError, load_scenario
 from ..io.tlog import TlogError, TlogWriter, read_tlog
 

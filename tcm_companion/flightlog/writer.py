@@ -101,7 +101,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from .. import __version__
 from . import topics
-from .disk import disk_free, flush_writer
+from .disk import MB, FreeSpace, flush_writer
 from .encoding import encode_item, metadata_value, proto_schema
 from .reader import (
     FLIGHT_ID_RE,
@@ -150,8 +150,6 @@ log = logging.getLogger(__name__)
 LOG_FORMAT = "tcm-flightlog/1"
 MAVLINK_TOPICS = topics.MAVLINK  # log_mavlink's direction -> topic
 
-_MB = 1_000_000
-
 
 # ---------------------------------------------------------------------------------------
 # Writer
@@ -199,12 +197,11 @@ class FlightLogWriter:
         if wall_minus_mono_ns is None:
             wall_minus_mono_ns = time.time_ns() - time.monotonic_ns()
         self.wall_minus_mono_ns = int(wall_minus_mono_ns)
-        self._free_bytes = free_bytes if free_bytes is not None else disk_free
+        self._space = FreeSpace(self.directory, config.min_free_mb, free_bytes)
         self._on_event = on_event
         self._free_check_interval_s = max(float(free_check_interval_s), 1e-3)
         self._retry_interval_s = max(float(retry_interval_s), 1e-3)
-        self._rotate_bytes = int(config.rotate_size_mb * _MB)
-        self._min_free_bytes = config.min_free_mb * _MB
+        self._rotate_bytes = int(config.rotate_size_mb * MB)
 
         # A SimpleQueue (put and get in C, no Python-level Condition), bounded by the
         # producers themselves: they check the depth and put under ``_lock``, which they
@@ -247,7 +244,6 @@ class FlightLogWriter:
         self._fault_disk_full = False  # the fault is a full disk (ENOSPC, EDQUOT)
         self._fault_reported = False
         self._encode_error_reported = False
-        self._disk_low = False
         # Counted as logged but not yet pushed to the OS (the open chunk): a failed write
         # loses them, and they are counted again as dropped (see _enter_fault).
         self._pending = [0, 0]  # frames, other messages
@@ -389,7 +385,7 @@ class FlightLogWriter:
             return "off"
         if self._fault:
             return "fault"
-        if self._disk_low:
+        if self._space.low:
             return "frames paused (disk)"
         return "recording"
 
@@ -501,7 +497,7 @@ class FlightLogWriter:
         if self.deterministic:
             self._record_time_housekeeping(int(item[2]))
         kind = item[0]
-        if kind in (KIND_FRAME, KIND_ANNOTATIONS) and self._disk_low:
+        if kind in (KIND_FRAME, KIND_ANNOTATIONS) and self._space.low:
             self._count(kind, "dropped_disk")
             return
         if self._mcap is None:
@@ -613,14 +609,9 @@ class FlightLogWriter:
             self._retry(now)
 
     def _check_free(self, now: float) -> None:
-        try:
-            free = int(self._free_bytes(self.directory))
-        except Exception:
-            return  # unknown (e.g. the directory is gone): the write path will tell
-        low = free < self._min_free_bytes
-        if low == self._disk_low:
+        if not self._space.checked():
             return
-        self._disk_low = low
+        low = self._space.low
         floor = f"{self.config.min_free_mb:g} MB"
         if low:
             self._event("warning", f"log: disk below {floor}, frames not logged")
@@ -657,7 +648,7 @@ class FlightLogWriter:
             self._enter_fault(e, now)
 
     def _retry(self, now: float) -> None:
-        if self._fault_disk_full and not self._room_for_a_part():
+        if self._fault_disk_full and not self._space.room_for_a_part(self.config.chunk_size_bytes):
             self._next_retry = now + self._retry_interval_s
             return
         try:
@@ -672,14 +663,6 @@ class FlightLogWriter:
         self._fault_disk_full = False
         self._fault_reported = False
         self._event("info", f"log: recording again ({self._counts.files[-1].name})")
-
-    def _room_for_a_part(self) -> bool:
-        """After a full disk: free space for a part's start and a chunk (unknown: try)."""
-        try:
-            free = int(self._free_bytes(self.directory))
-        except Exception:
-            return True
-        return free >= self.config.chunk_size_bytes + 65_536
 
     def _open_file(self) -> None:
         """Open the next part: header, metadata record, flushed; raises on failure."""

@@ -103,7 +103,14 @@ from ..mavlink.endpoint import (
 from ..mavlink.params import config_with_params
 from .box_feed import INPUT_NAME as BOX_FEED
 from .daemon_config import DaemonConfig
-from .health import CompanionStats, latency_percentile_ms, mark_unknown
+from .health import (
+    CompanionStats,
+    egomotion_quality_pct,
+    egomotion_source_code,
+    latency_percentile_ms,
+    mark_unknown,
+    status_line_text,
+)
 from .inputs import Inputs, InputSpec
 from .live_boxes import MAX_FRAMES_WAITING_FOR_BOXES, LiveBoxes
 from .outputs import FrameProcessed, HealthChecked, Output, ParamsChanged
@@ -111,13 +118,6 @@ from .slots import CameraSlots, FrameSlot
 from .timesync_clock import TimesyncClock
 
 log = logging.getLogger(__name__)
-
-_EGO_SOURCE = {
-    "vision": d.TCM_EGOMOTION_SOURCE_VISION,
-    "autopilot": d.TCM_EGOMOTION_SOURCE_AUTOPILOT,
-    "fused": d.TCM_EGOMOTION_SOURCE_FUSED,
-}
-
 
 #: A camera's expected frame rate when the driver does not give one (Hz).
 DEFAULT_CAMERA_HZ = 25.0
@@ -722,18 +722,13 @@ class Companion:
 
     def health_report(self, now_mono_us: int) -> HealthReport:
         tr = self._last_translation
-        quality = 0
-        if tr is not None and tr.valid and math.isfinite(tr.sigma_rad):
-            quality = round(100 * max(0.0, 1.0 - tr.sigma_rad / 0.2))
         p50 = latency_percentile_ms(self.latencies_ms, 50) if self.latencies_ms else 0.0
         return HealthReport(
             frame_rate_hz=self.frame_rate_hz(now_mono_us),
             latency_ms=p50,
             frames_dropped=self.stats.frames_dropped,
-            egomotion_source=_EGO_SOURCE.get(
-                tr.source if tr is not None else "", d.TCM_EGOMOTION_SOURCE_NONE
-            ),
-            egomotion_quality_pct=quality,
+            egomotion_source=egomotion_source_code(tr),
+            egomotion_quality_pct=egomotion_quality_pct(tr),
             health_flags=self.health_flags(now_mono_us),
             objects=sum(len(c.last_objects) for c in self.cameras),
             log_state=self.log_state,
@@ -741,34 +736,21 @@ class Companion:
 
     def status_line(self, now_mono_us: int) -> str:
         """One line: objects and states, nearest TTC, fps, latency, drops, problems."""
-        objs = [o for c in self.cameras for o in c.last_objects]
-        states: dict[str, int] = {}
-        for o in objs:
-            states[o.state] = states.get(o.state, 0) + 1
-        ttcs = [o.ttc_s for o in objs if o.ttc_s == o.ttc_s]
-        st = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "none"
-        if self.latencies_ms:
-            p50, p99 = (latency_percentile_ms(self.latencies_ms, q) for q in (50, 99))
-            latency = f"latency p50 {p50:.1f} p99 {p99:.1f} ms"
-        else:
-            latency = "latency n/a"  # no frame's output written yet
         problems = [s.problem for s in self.inputs.status(now_mono_us).values() if s.problem]
         overload = self.overload_problem(now_mono_us)
         if overload:
             problems.append(overload)
         if self.conflict:
             problems.append(self.conflict)
-        head = f"objects {len(objs)} ({st}) | "
-        if ttcs:
-            head += f"TTC {min(ttcs):.1f}s | "
-        if len(self._frame_times_mono_us) < 2 and now_mono_us - self._started_mono_us < 2_000_000:
-            rate = "starting"  # no two frames yet to measure a rate on: not "0.0 fps"
-        else:
-            rate = f"{self.frame_rate_hz(now_mono_us):4.1f} fps"
-        return head + (
-            f"{rate} | {latency}"
-            f" | drops {self.stats.frames_dropped}{self.boxes.status()} | "
-            + ("; ".join(problems) if problems else "inputs OK")
+        starting = (
+            len(self._frame_times_mono_us) < 2 and now_mono_us - self._started_mono_us < 2_000_000
+        )
+        return status_line_text(
+            [o for c in self.cameras for o in c.last_objects],
+            None if starting else self.frame_rate_hz(now_mono_us),
+            self.latencies_ms,
+            f"{self.stats.frames_dropped}{self.boxes.status()}",
+            problems,
         )
 
 

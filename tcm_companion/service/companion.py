@@ -100,7 +100,7 @@ from ..mavlink.endpoint import (
     TelemetryRejected,
     TrackingImageStatus,
 )
-from ..mavlink.params import config_with_params
+from ..mavlink.params import config_with_params, params_problem
 from .box_feed import INPUT_NAME as BOX_FEED
 from .daemon_config import DaemonConfig
 from .health import (
@@ -167,15 +167,15 @@ class Companion:
         # others (a seed hue range leaving the grow range) is refused by the endpoint,
         # never raised in the middle of the event loop.
         endpoint.param_check = self._param_problem
-        try:
-            self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
-        except ValueError as exc:
+        refused = params_problem(pipeline_config, endpoint.params.values)
+        if refused:
             # Stored values that cannot be applied together: the configuration's instead.
             endpoint.params.values.update(endpoint.params.defaults)
-            self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+        self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+        if refused:
             endpoint.statustext(
                 d.MAV_SEVERITY_WARNING,
-                f"TCM: stored parameters refused ({_short(exc)}); using the configuration's",
+                f"TCM: stored parameters refused ({refused}); using the configuration's",
                 now_mono_us,
             )
         self._timer_kw: dict[str, Callable[[], float]] = (
@@ -548,11 +548,7 @@ class Companion:
 
     def _param_problem(self, values: Mapping[str, float]) -> str:
         """Why the parameter ``values`` cannot be applied to the pipeline ("" if they can)."""
-        try:
-            config_with_params(self.base_pipeline_config, values)
-        except ValueError as exc:
-            return _short(exc)
-        return ""
+        return params_problem(self.base_pipeline_config, values)
 
     def _apply_params(self, now_mono_us: int) -> None:
         new = config_with_params(self.base_pipeline_config, self.endpoint.params.values)
@@ -752,11 +748,3 @@ class Companion:
             f"{self.stats.frames_dropped}{self.boxes.status()}",
             problems,
         )
-
-
-def _short(exc: Exception) -> str:
-    """A configuration error without its class prefix ("DetectionConfig.seed_hue_deg ..."
-    -> "seed_hue_deg ..."), for a STATUSTEXT."""
-    text = str(exc)
-    head, dot, rest = text.partition(".")
-    return rest if dot and head.endswith("Config") and " " not in head else text

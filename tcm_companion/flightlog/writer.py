@@ -62,8 +62,9 @@ keeps under its lock; :attr:`FlightLogWriter.stats` is a copy of it.
 
 The writer's parts, one job each: :mod:`.settings` (``[logging]``, :class:`LoggingConfig`),
 :mod:`.stats` (the counts and state), :mod:`.encoding` (JPEG/PNG, protobuf and JSON
-payloads, off the hot path) and :mod:`.disk` (free space, flushing to the OS); this
-module is the thread, the queue, and the parts' rotation and faults.
+payloads, off the hot path), :mod:`.part` (one MCAP file: start, channels, flush,
+finish) and :mod:`.disk` (the free-space floor, flushing to the OS); this module is the
+thread, the queue, and the parts' naming, rotation and faults.
 
 Topics
 ------
@@ -83,7 +84,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import json
 import logging
 import math
 import os
@@ -97,12 +97,11 @@ from pathlib import Path
 from typing import IO, Any, Literal
 
 import numpy as np
-from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
-from .. import __version__
 from . import topics
-from .disk import MB, FreeSpace, flush_writer
-from .encoding import encode_item, metadata_value, proto_schema
+from .disk import MB, FreeSpace
+from .encoding import encode_item, metadata_value
+from .part import LogPart
 from .reader import (
     FLIGHT_ID_RE,
     METADATA_NAME,
@@ -233,13 +232,8 @@ class FlightLogWriter:
         self._metadata: dict[str, str] = {}
         self._session = ""
         self._counter = 0
-        self._fh: IO[bytes] | None = None
-        self._mcap: Writer | None = None
-        self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
-        self._sequence: dict[int, int] = {}
+        self._part: LogPart | None = None  # the open part
         self._file_opened_at = 0.0
-        self._dirty = False
         self._fault = False
         self._fault_disk_full = False  # the fault is a full disk (ENOSPC, EDQUOT)
         self._fault_reported = False
@@ -500,7 +494,7 @@ class FlightLogWriter:
         if kind in (KIND_FRAME, KIND_ANNOTATIONS) and self._space.low:
             self._count(kind, "dropped_disk")
             return
-        if self._mcap is None:
+        if self._part is None:
             self._count(kind, "dropped_disk" if self._fault_disk_full else "dropped_error")
             return
         try:
@@ -521,15 +515,14 @@ class FlightLogWriter:
             return
         counted = False
         try:
-            self._write(topic, channel_kind, log_ns, publish_ns, payload)
+            self._part.write(topic, channel_kind, log_ns, publish_ns, payload)
             with self._lock:
                 self._counts.count(kind, "logged")
             self._pending[kind != KIND_FRAME] += 1
             counted = True  # from here on a failure counts it again, as pending
-            assert self._fh is not None
-            pos = self._fh.tell()
+            pos = self._part.fh.tell()
             if pos != self._written_pos:  # mcap ended a chunk: push it to the OS now, so
-                self._fh.flush()  # that what is counted as logged is what the file holds
+                self._part.fh.flush()  # that what is counted as logged is what the file holds
                 self._written(pos)
         except Exception as e:
             if not counted:  # the write itself failed
@@ -546,38 +539,6 @@ class FlightLogWriter:
         if self._pending != [0, 0]:
             self._part_flushed = True
         self._pending = [0, 0]
-
-    def _write(self, topic: str, channel_kind: str, log_ns: int, pub_ns: int, data: bytes) -> None:
-        assert self._mcap is not None
-        channel_id = self._channels.get(topic)
-        if channel_id is None:
-            channel_id = self._register(topic, channel_kind)
-        seq = self._sequence.get(channel_id, 0)
-        self._sequence[channel_id] = (seq + 1) & 0xFFFFFFFF
-        self._mcap.add_message(
-            channel_id=channel_id, log_time=log_ns, data=data, publish_time=pub_ns, sequence=seq
-        )
-        self._dirty = True
-
-    def _register(self, topic: str, channel_kind: str) -> int:
-        assert self._mcap is not None
-        if channel_kind == "mavlink":
-            schema_id, encoding = 0, "mavlink"
-        elif channel_kind == "json":
-            schema = json.dumps({"title": topic, "type": "object"}).encode()
-            schema_id = self._mcap.register_schema(name=topic, encoding="jsonschema", data=schema)
-            encoding = "json"
-        else:
-            if channel_kind not in self._schemas:
-                self._schemas[channel_kind] = self._mcap.register_schema(
-                    name=channel_kind, encoding="protobuf", data=proto_schema(channel_kind)
-                )
-            schema_id, encoding = self._schemas[channel_kind], "protobuf"
-        channel_id = self._mcap.register_channel(
-            topic=topic, message_encoding=encoding, schema_id=schema_id
-        )
-        self._channels[topic] = channel_id
-        return channel_id
 
     def _record_time_housekeeping(self, t_us: int) -> None:
         """Deterministic mode: flush and rotate by the records' time (every item's
@@ -600,7 +561,7 @@ class FlightLogWriter:
             self._check_free(now)
             self._check_file_linked(now)
         if (
-            self._mcap is not None
+            self._part is not None
             and not self.deterministic
             and now - self._file_opened_at >= self.config.rotate_interval_s
         ):
@@ -619,21 +580,19 @@ class FlightLogWriter:
             self._event("info", f"log: disk above {floor}, frames logged again")
 
     def _check_file_linked(self, now: float) -> None:
-        if self._fh is None:
+        if self._part is None:
             return
         try:
-            if os.fstat(self._fh.fileno()).st_nlink == 0:
+            if os.fstat(self._part.fh.fileno()).st_nlink == 0:
                 raise FileNotFoundError(errno.ENOENT, "the log file was deleted")
         except Exception as e:
             self._enter_fault(e, now)
 
     def _flush(self, now: float) -> None:
-        if self._mcap is None or self._fh is None or not self._dirty:
+        if self._part is None or not self._part.dirty:
             return
         try:
-            flush_writer(self._mcap, self._fh)
-            self._dirty = False
-            self._bytes_current = self._fh.tell()
+            self._bytes_current = self._part.flush()
             self._written(self._bytes_current)
         except Exception as e:
             self._enter_fault(e, now)
@@ -678,14 +637,8 @@ class FlightLogWriter:
         else:  # pragma: no cover
             raise FileExistsError(errno.EEXIST, "no free log file name", str(self.directory))
         try:
-            writer = Writer(
-                fh, chunk_size=self.config.chunk_size_bytes, compression=CompressionType.ZSTD
-            )
-            writer.start(profile="", library=f"tcm-companion/{__version__} {LIBRARY_IDENTIFIER}")
-            writer.add_metadata(
-                METADATA_NAME, {**self._metadata, "log_part": str(len(self._counts.files))}
-            )
-            fh.flush()
+            part = LogPart(fh, self.config.chunk_size_bytes)
+            part.start({**self._metadata, "log_part": str(len(self._counts.files))})
         except BaseException:
             with contextlib.suppress(Exception):
                 fh.close()
@@ -693,9 +646,7 @@ class FlightLogWriter:
                 path.unlink()  # ours (created here): no empty or partial part is left
             raise
         self._counter += 1
-        self._fh, self._mcap = fh, writer
-        self._channels, self._schemas, self._sequence = {}, {}, {}
-        self._dirty = False
+        self._part = part
         self._pending = [0, 0]
         self._written_pos = fh.tell()
         self._part_flushed = False
@@ -710,21 +661,15 @@ class FlightLogWriter:
 
     def _close_file(self) -> None:
         """Finish the part (summary, footer), fsync and close it."""
-        fh, writer = self._fh, self._mcap
-        if fh is None or writer is None:
+        if self._part is None:
             return
         try:
-            writer.finish()
-            fh.flush()
-            with contextlib.suppress(OSError):
-                os.fsync(fh.fileno())
-            size = fh.tell()
-            fh.close()
+            size = self._part.finish()
         except Exception as e:
             self._enter_fault(e, time.monotonic())
             return
         self._pending = [0, 0]
-        self._fh = self._mcap = None
+        self._part = None
         with self._lock:
             self._bytes_closed += size
             self._bytes_current = 0
@@ -735,7 +680,7 @@ class FlightLogWriter:
         lost = lost_outcome(exc)
         frames, messages = self._pending
         self._pending = [0, 0]
-        fh = self._fh
+        fh = self._part.fh if self._part is not None else None
         # A part that never got a message out holds only its start: remove it (a full
         # disk would otherwise leave one such part per retry).
         useless = fh is not None and not self._part_flushed
@@ -759,7 +704,7 @@ class FlightLogWriter:
         if gone is not None:
             with contextlib.suppress(OSError):
                 gone.unlink()
-        self._fh = self._mcap = None
+        self._part = None
         self._fault = True
         self._fault_disk_full = lost == "dropped_disk"
         self._next_retry = now + self._retry_interval_s

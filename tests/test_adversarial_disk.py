@@ -122,7 +122,8 @@ WRITER = textwrap.dedent(
     import json, os, sys, time
     from pathlib import Path
     import numpy as np
-    from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+    from tcm_companion.flightlog.settings import LoggingConfig
+    from tcm_companion.flightlog.writer import FlightLogWriter
 
     d = Path(sys.argv[1])
     filler = d / "filler"

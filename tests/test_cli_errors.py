@@ -957,7 +957,8 @@ def test_plot_of_a_flight_log_that_holds_nothing_to_plot_is_an_error(
 ) -> None:
     """A flight log with its metadata and nothing else (a run stopped at once): every plot
     is skipped, and that is exit 2 with one line, not a success with no picture."""
-    from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+    from tcm_companion.flightlog.settings import LoggingConfig
+    from tcm_companion.flightlog.writer import FlightLogWriter
 
     writer = FlightLogWriter(LoggingConfig(), tmp_path / "log")
     writer.start({"config": "{}"})

@@ -36,7 +36,7 @@ import pytest
 
 from tcm_companion.config import AppConfig
 from tcm_companion.flightlog.reader import decode_json, read_log
-from tcm_companion.flightlog.writer import LoggingConfig
+from tcm_companion.flightlog.settings import LoggingConfig
 from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.results import ResultsWriter
 from tcm_companion.replay.log import ROUNDING_REL_TOL, compare, replay_log

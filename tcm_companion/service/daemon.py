@@ -46,10 +46,12 @@ import cv2
 from ..core.pipeline import FrameResult, PipelineConfig
 from ..io.aio import MONOTONIC, LoopClock
 from ..io.cameras.base import Frame
+from ..io.detector_model import read_detector_model
 from ..io.transports import Transport, TransportError
 from ..mavlink.endpoint import CompanionEndpoint
 from .box_feed import open_box_feed
-from .companion import Companion, DaemonConfig
+from .companion import Companion
+from .daemon_config import DaemonConfig
 from .endpoint_setup import MavlinkSettings
 from .plumbing import CameraInput, DaemonSummary, NotifierLike, Plumbing
 
@@ -256,6 +258,7 @@ class Daemon:
                 daemon_cfg,
                 [c.name for c in self.camera_inputs],
                 camera_rates_hz=[c.fps for c in self.camera_inputs],
+                detector_model=read_detector_model(self.config.pipeline.detection),
             )
             self.plumbing = Plumbing(
                 self.companion,

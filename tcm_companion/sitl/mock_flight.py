@@ -49,6 +49,7 @@ from ..core.camera import CameraModel
 from ..core.frames import normalize
 from ..core.pipeline import FrameResult
 from ..io.aio import monotonic_us
+from ..io.detector_model import read_detector_model
 from ..io.transports import Transport, open_transport
 from ..io.truth import match_truth
 from ..logsetup import start_flight_log
@@ -633,6 +634,7 @@ def run_sitl_virtual(
                 [c.name for c in cameras],
                 camera_rates_hz=[c.fps for c in cameras],
                 pipeline_timer=lambda: now_us() / 1e6,  # stages take no simulated time
+                detector_model=read_detector_model(config.pipeline.detection),
             )
             plumbing = Plumbing(
                 companion,

@@ -864,7 +864,7 @@ def test_a_live_writer_is_woken_by_frames_not_by_every_item(tmp_path: Path) -> N
     """Live, the writer thread wakes for a frame (25 Hz), a half-full queue, its own
     timers or stop, and writes what came in meanwhile with it: a wake-up per MAVLink
     datagram or result cost the loop a futex call and a GIL hand-over each (issue 15,
-    docs/decisions.md §8, third round). Before, every item woke it."""
+    docs/decisions.md §8.3). Before, every item woke it."""
     w = FlightLogWriter(
         LoggingConfig(flush_interval_s=5.0, queue_items=64),
         tmp_path,

@@ -1,4 +1,4 @@
-"""Where the daemon's CPU goes besides the pipeline (docs/decisions.md §8, third round).
+"""Where the daemon's CPU goes besides the pipeline (docs/decisions.md §8.3).
 
 Runs the daemon as ``tcm-companion bench --daemon`` runs it (frames of the simulated T90
 flight from PNG files at 25 Hz, 360×220, looped; the mock autopilot in its own process

@@ -15,7 +15,7 @@ virtual`` would say.
     .venv/bin/python tools/virtual_sitl_rates.py              # T45 and T90, 30 s each
     .venv/bin/python tools/virtual_sitl_rates.py --duration 10 --scenarios T90
 
-The table it prints is quoted in docs/decisions.md (section 7).
+The table it prints is quoted in docs/decisions.md §7.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ wait. ONE writer thread does everything else: JPEG/PNG encoding, JSON and protob
 serialisation, MCAP framing, compression and file IO. It is woken by each frame, by a
 half-full queue and by its own timers, not by every item: the MAVLink bytes and results
 between two frames are written together (a wake-up per item cost the daemon's loop a
-futex call and a GIL hand-over each; docs/decisions.md §8). Its flush timer still runs,
+futex call and a GIL hand-over each; docs/decisions.md §8.3). Its flush timer still runs,
 so the crash-safety bound below holds without frames too.
 
 *Ownership.* ``log_frame`` keeps a reference to the image array, it does not copy it: the

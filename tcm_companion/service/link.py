@@ -21,11 +21,11 @@ import asyncio
 from collections.abc import Callable
 
 from ..core.pipeline import FrameResult
-from ..io.aio import MONOTONIC, LoopClock, monotonic_us
+from ..io.aio import MONOTONIC, LoopClock
 from ..io.transports import Transport, TransportClosed, TransportError, TransportTimeout
 from ..mavlink.endpoint import CompanionEndpoint, Event
 
-__all__ = ["CompanionLink", "monotonic_us"]
+__all__ = ["CompanionLink"]
 
 _RETRY_US = 100_000  # a closed or failing transport is read again after this
 _POLL_MAX_US = 1_000_000  # the timer polls at least this often

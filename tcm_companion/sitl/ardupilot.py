@@ -43,12 +43,12 @@ import numpy as np
 
 from ..config import AppConfig
 from ..core.pipeline import FrameResult
+from ..io.aio import monotonic_us
 from ..io.transports import open_transport
 from ..io.truth import match_truth
 from ..mavlink.endpoint import CompanionEndpoint
 from ..service.daemon import CameraInput, Daemon, DaemonSummary
 from ..service.endpoint_setup import make_endpoint, resolve_state_paths
-from ..service.link import monotonic_us
 from ..sim.scene.autopilot_camera import AutopilotSimCamera, Launch, SceneSettings
 from ..sim.vehicle.ardupilot_sitl import ArduPilotSitl, mode_name, mode_number
 

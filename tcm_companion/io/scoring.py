@@ -117,17 +117,22 @@ class Score:
     warmup_s: float = 0.0
     truth_frames: int = 0  # object-frames with the object in front of the camera
     truth_after_warmup: int = 0  # ... of them after the warm-up
+    # ... of them of an object that the companion has had (or that has been in view, if
+    # it never had it) for at least the classifier's interval and hold: each could have
+    # been decided (a run that decides none has failed; a run too short has not)
+    overdue: int = 0
     matched: int = 0
     decided: int = 0  # matched and not "unknown" (after the warm-up)
     correct: int = 0
     scored: int = 0  # matched after the warm-up
     by_state: Counter[str] = field(default_factory=Counter)
 
-    def add(self, warm: bool, state: str | None, truth_moving: bool) -> None:
+    def add(self, warm: bool, state: str | None, truth_moving: bool, overdue: bool = False) -> None:
         """Count one object-frame in view: ``warm`` after the warm-up; ``state``: the
-        matched object's state (None: no object matched it)."""
+        matched object's state (None: no object matched it); ``overdue``: see the field."""
         self.truth_frames += 1
         self.truth_after_warmup += int(warm)
+        self.overdue += int(warm and overdue)
         if state is None:
             return
         self.matched += 1

@@ -49,7 +49,7 @@ from tcm_companion.io.cameras.settings import (
 from tcm_companion.sim.scene.truth_camera import SimulatedCamera
 from tcm_companion.sim.sources import register_sim_sources
 
-from .conftest import example_path
+from .helpers import example_path
 
 W, H = 64, 48  # video / frames-directory test images
 FPS = 25.0

@@ -29,7 +29,7 @@ from tcm_companion.core.frames import angle_between, bearing_from_azel, normaliz
 from tcm_companion.core.telemetry import TelemetryBuffer
 from tcm_companion.io.scenario import load_scenario
 
-from .conftest import example_path
+from .helpers import example_path
 
 CAMERAS: dict[str, CameraModel] = {
     "equirectangular": Equirectangular(360, 220),

@@ -16,7 +16,7 @@ from tcm_companion.io.results import RESULTS_HEADER
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.sim import make_scenario
 
-from .conftest import example_path
+from .helpers import example_path
 
 CLS = AppConfig().pipeline.classifier
 

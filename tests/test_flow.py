@@ -294,7 +294,7 @@ def test_example_scenario_gives_the_true_translation_direction() -> None:
     from tcm_companion.core.telemetry import TelemetryBuffer
     from tcm_companion.io.scenario import load_scenario
 
-    from .conftest import example_path
+    from .helpers import example_path
 
     s = load_scenario(example_path("EX-T90"))
     assert s.truth is not None

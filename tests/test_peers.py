@@ -34,14 +34,10 @@ from tcm_companion.mavlink.endpoint import (
 from tcm_companion.mavlink.peers import SenderGuard, TokenBucket
 from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 
+from .helpers import decode
+
 START = 5_000_000_000  # µs on the simulated clock
 S = 1_000_000
-
-
-def decode(data: bytes) -> list[Any]:
-    mav = d.MAVLink(None)
-    mav.robust_parsing = True
-    return [m for m in (mav.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
 
 
 class Link:

@@ -13,7 +13,7 @@ from tcm_companion.core.telemetry import AttitudeSample
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.replay.scenario import run_replay
 
-from .conftest import example_path
+from .helpers import example_path
 
 
 @pytest.fixture(scope="module")

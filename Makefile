@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
 UV     := uv==0.13.9
 
-.PHONY: run demo test test-adversarial test-tools lint typecheck venv lock lua32 clean eval bench interop-env
+.PHONY: run demo test test-fast test-adversarial test-tools lint typecheck venv lock lua32 clean eval bench interop-env
 
 venv: $(STAMP)
 
@@ -105,6 +105,14 @@ test-tools: $(STAMP)
 test: lint typecheck test-tools
 	$(BIN)/python -m compileall -q tcm_companion
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+
+## The fast lane while working: every test but the slow ones (real time, subprocesses,
+## socat, ArduCopter SITL, more than ~0.5 s of CPU: tests/conftest.py), in under a minute on
+## two cores. No lint, no type check, no tool installs; make test stays what CI runs.
+## (compileall: as for make test, above.)
+test-fast: $(STAMP)
+	$(BIN)/python -m compileall -q tcm_companion
+	$(BIN)/python -m pytest -n 2 -m "not slow" -q
 
 ## What an attacker or a careless user tries, each asserting nothing was lost: outputs over
 ## inputs, devices, FIFOs and symlinks; signals mid-write; a full disk; two flights in one

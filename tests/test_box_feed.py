@@ -210,6 +210,7 @@ def flight() -> tuple[SimulatedScenario, list[np.ndarray], dict[int, list[Box]]]
     return scenario, frames, boxes
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_frames_wait_for_boxes_that_come_later_than_the_next_frame(flight: Any) -> None:
     """A detector 60 ms behind a 25-Hz camera: every frame waits for its boxes (a newer
     frame does not push out one still waiting), none is dropped, each is processed with
@@ -458,6 +459,7 @@ _message_like = st.fixed_dictionaries(
 )
 
 
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=300, deadline=None)
 @given(
     st.one_of(
@@ -542,6 +544,7 @@ _hostile_datagram = st.one_of(
 )
 
 
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=300, deadline=None)
 @given(st.lists(_hostile_datagram, min_size=1, max_size=6))
 def test_hostile_datagrams_are_refused_and_counted_never_raised(datagrams: list[bytes]) -> None:
@@ -563,6 +566,7 @@ def test_hostile_datagrams_are_refused_and_counted_never_raised(datagrams: list[
     assert comp.on_box_datagram(good, 2_000_000) == "accepted"
 
 
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=200, deadline=None)
 @given(st.lists(_message_like.map(lambda x: json.dumps(x).encode()), max_size=8))
 def test_the_companion_takes_any_datagrams_and_counts_each(datagrams: list[bytes]) -> None:

@@ -44,6 +44,7 @@ def gcs_bytes(msg: Any) -> bytes:
     return bytes(msg.pack(mav))
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 100)
@@ -354,6 +355,7 @@ def test_the_flight_log_falling_behind_is_reported_at_the_health_check(flight: A
     assert drv.health_checks()[-1].report.health_flags & d.TCM_HEALTH_LOG_FAULT
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_replay_frame_forces_the_clock_offset_and_the_override(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 30)

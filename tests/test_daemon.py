@@ -39,6 +39,8 @@ from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilo
 from tcm_companion.sitl.mock import SitlReport, run_sitl
 from tcm_companion.sitl.virtual import VIRTUAL_START_MONO_US
 
+pytestmark = pytest.mark.slow  # SITL runs (virtual and real time), the daemon in a subprocess
+
 ROOT = Path(__file__).resolve().parents[1]
 FPS = 25
 

@@ -204,6 +204,7 @@ DISC_CASES = [
 ]
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize(("cam_name", "az", "el", "alpha"), DISC_CASES)
 def test_shaded_disc_radius_within_2pct_and_bearing_within_0p1_px(
     cam_name: str, az: float, el: float, alpha: float
@@ -578,6 +579,7 @@ def test_bad_inputs_raise() -> None:
 # -- the independent examples ------------------------------------------------------
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("name", ["EX-T90", "EX-PINHOLE", "EX-FISHEYE"])
 def test_examples_bearing_and_radius_match_truth(name: str) -> None:
     scenario = load_scenario(example_path(name))

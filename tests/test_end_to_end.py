@@ -18,6 +18,8 @@ from tcm_companion.sim import make_scenario
 
 from .helpers import example_path
 
+pytestmark = pytest.mark.slow  # simulated flights rendered and replayed, seconds of CPU each
+
 CLS = AppConfig().pipeline.classifier
 
 

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # lint-imports in a subprocess
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

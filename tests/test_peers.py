@@ -127,6 +127,7 @@ class Spoofer:
         return out + self.codec.encode(att)
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_spoofer_as_the_autopilot_is_one_conflict_not_a_reboot_storm() -> None:
     """Issue 24 §3: a second sender as 1/1 with its own clock (going back) and NaN
     attitude was taken as an autopilot reboot 504 times and drew 60-93 COMMAND_LONG a

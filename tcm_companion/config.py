@@ -31,9 +31,10 @@ from .core.camera import (
     lens_range_text,
 )
 from .core.pipeline import PipelineConfig
-from .flightlog.writer import LoggingConfig
+from .flightlog.settings import LoggingConfig
 from .io.cameras.settings import CameraSettings
-from .service.companion import DaemonConfig
+from .service.daemon_config import RANGES as DAEMON_RANGES
+from .service.daemon_config import DaemonConfig
 from .service.endpoint_setup import MavlinkSettings
 
 log = logging.getLogger(__name__)
@@ -549,27 +550,7 @@ RANGES: dict[str, RangeSpec] = {
             "statustext_queue": "[1, 1000] texts",
         },
     ),
-    **_ranges(
-        "daemon",
-        {
-            "attitude_lead_max_us": "[1, 1000000] µs",
-            "attitude_wait_max_us": "[1, 1000000] µs",  # and >= attitude_lead_max_us
-            "camera_timeout_us": "[10000, 60000000] µs",
-            "attitude_timeout_us": "[10000, 60000000] µs",
-            "position_timeout_us": "[10000, 60000000] µs",
-            "health_interval_us": "[10000, 60000000] µs",
-            "rebuild_after_errors": "[1, 100000] frames",
-            "latency_window": "[1, 100000] frames",
-            "opencv_threads": "[0, 1024] threads",  # 0: OpenCV's default
-            "gil_switch_interval_us": "[1, 1000000] µs",
-            # A frame waits this long for its boxes at most (docs/box-feed.md); a second
-            # is 25 frames at 25 Hz.
-            "box_wait_max_us": "[1, 1000000] µs",
-            "box_feed_timeout_us": "[10000, 60000000] µs",
-            "box_tracking_camera": "[0, 255]",  # an index into the cameras
-            "box_tracking_latency_us": "[0, 1000000] µs",
-        },
-    ),
+    **_ranges("daemon", DAEMON_RANGES),  # the service keeps them (service/daemon_config.py)
     **_ranges(
         "sim",
         {
@@ -901,27 +882,6 @@ def _check_ranges(
     _raise_all(errors)
 
 
-def _range_of(table: str, key: str) -> tuple[str, bool] | None:
-    """The :data:`RANGES` key of ``key`` written in ``[table]``, and whether it was
-    written in degrees for a field in radians."""
-    if f"{table}.{key}" in RANGES:
-        return f"{table}.{key}", False
-    if key.endswith("_deg") and f"{table}.{key[:-4]}_rad" in RANGES:
-        return f"{table}.{key[:-4]}_rad", True
-    return None
-
-
-def describe_range(key: str) -> str | None:
-    """The valid range of setting ``"table.key"`` as config.toml states it
-    (``"classifier.min_theta_deg"`` -> ``"[0, 90) deg"``); None for a key without one."""
-    table, _, name = key.rpartition(".")
-    found = _range_of(table.removeprefix("pipeline."), name)
-    if found is None:
-        return None
-    spec = RANGES[found[0]]
-    return spec.text() if isinstance(spec, PerItem) else spec.text(deg=found[1])
-
-
 def _pipeline_table(doc: dict[str, Any], where: str) -> dict[str, Any]:
     """The flat TOML layout ([pipeline] plus one table per stage) as one nested table."""
     table = dict(doc.get("pipeline", {}))
@@ -1135,21 +1095,11 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
         errors += _url_errors(tables["mavlink"].url, f"{where}: [mavlink]", "url", "mavlink.url")
     try:
         _raise_all(errors)  # the checks across tables need every table sound
-        for key in ("box_feed", "box_tracking"):
-            if getattr(tables["daemon"], key) and pipeline.detection.backend != "boxes":
-                raise ConfigError(
-                    f'{where}: [daemon] {key} needs [detection] backend = "boxes" (it is'
-                    f" {pipeline.detection.backend!r}): the feed's boxes are that backend's"
-                    " input",
-                    f"daemon.{key}",
-                )
-        tracking_camera = tables["daemon"].box_tracking_camera
-        if tables["daemon"].box_tracking and tracking_camera > 0:
-            raise ConfigError(
-                f"{where}: [daemon] box_tracking_camera = {tracking_camera} is not a camera:"
-                " the daemon runs one ([camera], index 0)",
-                "daemon.box_tracking_camera",
-            )
+        # The daemon runs one camera ([camera], index 0).
+        problem = tables["daemon"].feed_problem(pipeline.detection.backend, 1)
+        if problem is not None:
+            key, why = problem
+            raise ConfigError(f"{where}: [daemon] {why}", f"daemon.{key}")
     except ConfigError as exc:
         renamed = []
         for e in exc.errors:

@@ -31,7 +31,9 @@ from tcm_companion.core.telemetry import AttitudeSample
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.endpoint import CompanionEndpoint, TelemetryReceived, TelemetryRejected
 from tcm_companion.service.box_feed import encode_box_message
-from tcm_companion.service.companion import Companion, DaemonConfig, FrameProcessed, HealthChecked
+from tcm_companion.service.companion import Companion
+from tcm_companion.service.daemon_config import DaemonConfig
+from tcm_companion.service.outputs import FrameProcessed, HealthChecked
 from tcm_companion.sim.scene.export import SimulatedScenario
 from tcm_companion.sim.scene.scenarios import flight_plan
 

@@ -33,7 +33,7 @@ from tcm_companion import cli
 from tcm_companion.config import AppConfig
 from tcm_companion.flightlog import topics
 from tcm_companion.flightlog.reader import check_log, read_log, read_metadata
-from tcm_companion.sitl.mock import run_sitl_virtual
+from tcm_companion.sitl.mock_flight import run_sitl_virtual
 
 
 def _namespace_works() -> str:
@@ -122,7 +122,8 @@ WRITER = textwrap.dedent(
     import json, os, sys, time
     from pathlib import Path
     import numpy as np
-    from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+    from tcm_companion.flightlog.settings import LoggingConfig
+    from tcm_companion.flightlog.writer import FlightLogWriter
 
     d = Path(sys.argv[1])
     filler = d / "filler"

@@ -39,7 +39,7 @@ from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
 from tcm_companion.mavlink.endpoint import REQUEST_BURST
 from tcm_companion.service.box_feed import MAX_DATAGRAM_BYTES, encode_box_message
-from tcm_companion.sitl.mock import SitlReport, run_sitl
+from tcm_companion.sitl.mock_flight import SitlReport, run_sitl
 
 pytestmark = pytest.mark.xdist_group("sitl")  # real-time SITL: one at a time
 

@@ -17,7 +17,9 @@ import pytest
 
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
-from tcm_companion.sim.vehicle.ardupilot_sitl import ArduPilotSitl, MavlinkTcpClient, skip_reason
+from tcm_companion.sitl.ardupilot_process import skip_reason
+from tcm_companion.sitl.ardupilot_vehicle import ArduPilotSitl
+from tcm_companion.sitl.gcs import GcsClient
 
 ROOT = Path(__file__).resolve().parents[1]
 APPLET = ROOT / "tools" / "ardupilot" / "tcm_avoid.lua"
@@ -36,12 +38,12 @@ def sitl() -> Iterator[ArduPilotSitl]:
 
 
 @pytest.fixture(scope="module")
-def companion(sitl: ArduPilotSitl) -> MavlinkTcpClient:
+def companion(sitl: ArduPilotSitl) -> GcsClient:
     return sitl.connect(1)  # (1, 191), heartbeats as an onboard controller
 
 
 def _boot_ms(sitl: ArduPilotSitl) -> int:
-    boot = sitl.gcs.autopilot_boot_ms()
+    boot = sitl.gcs.autopilot_boot_ms(time.monotonic())
     assert boot is not None, "no time-stamped message from the autopilot"
     return boot
 
@@ -86,15 +88,15 @@ def _alarm(boot_ms: int, **kw: float) -> d.MAVLink_tcm_object_status_message:
 
 
 def test_applet_loads_with_its_parameters(sitl: ArduPilotSitl) -> None:
-    sitl.wait_statustext(r"^TCM: avoid applet loaded", 10.0, since_s=0.0)
-    assert sitl.get_param("TCMA_ACTION") == 1.0  # warn, by default
-    assert sitl.get_param("TCMA_TTC_CLR") == pytest.approx(4.5)
-    assert sitl.get_param("TCMA_HOLD_MS") == 2000.0
+    sitl.gcs.wait_statustext(r"^TCM: avoid applet loaded", 10.0, since_s=0.0)
+    assert sitl.gcs.get_param("TCMA_ACTION") == 1.0  # warn, by default
+    assert sitl.gcs.get_param("TCMA_TTC_CLR") == pytest.approx(4.5)
+    assert sitl.gcs.get_param("TCMA_HOLD_MS") == 2000.0
 
 
 @pytest.mark.parametrize("hours", [2.2, -5.0])
 def test_applet_survives_hour_scale_clock_offset(
-    sitl: ArduPilotSitl, companion: MavlinkTcpClient, hours: float
+    sitl: ArduPilotSitl, companion: GcsClient, hours: float
 ) -> None:
     # On this firmware the old applet died 0.15 s after loading: "8-byte integer does not
     # fit into Lua Integer", on the first TCM_PIPELINE_HEALTH of a companion booted more
@@ -107,14 +109,14 @@ def test_applet_survives_hour_scale_clock_offset(
         time.sleep(0.5)
     # still running and decoding: an alarm on the ground (disarmed) is a warning text
     companion.send_bytes(codec.encode(_alarm(_boot_ms(sitl))))
-    warn = sitl.wait_statustext(r"^TCM: collision course id 7 ttc 1\.5s$", 3.0, since_s=t0)
-    lua_errors = [t.text for t in sitl.statustexts(t0) if t.text.startswith("Lua")]
+    warn = sitl.gcs.wait_statustext(r"^TCM: collision course id 7 ttc 1\.5s$", 3.0, since_s=t0)
+    lua_errors = [t.text for t in sitl.gcs.statustexts(t0) if t.text.startswith("Lua")]
     assert lua_errors == []
     assert warn.t_s > t0
 
 
 def test_ground_station_sees_companion_data_flowing(
-    sitl: ArduPilotSitl, companion: MavlinkTcpClient
+    sitl: ArduPilotSitl, companion: GcsClient
 ) -> None:
     # the applet's NAMED_VALUE_FLOATs reach the ground station's link from the autopilot
     codec = MavlinkCodec(1, 191)
@@ -135,7 +137,7 @@ def test_ground_station_sees_companion_data_flowing(
 
 
 def test_a_burst_of_statuses_does_not_exceed_the_vm_budget(
-    sitl: ArduPilotSitl, companion: MavlinkTcpClient
+    sitl: ArduPilotSitl, companion: GcsClient
 ) -> None:
     """Seen in the flights on a loaded machine: "Lua: ./scripts/tcm_avoid.lua exceeded
     time limit", the applet removed, no BRAKE. ArduPilot stops a script whose call runs
@@ -151,7 +153,7 @@ def test_a_burst_of_statuses_does_not_exceed_the_vm_budget(
     )
     companion.send_bytes(burst)
     time.sleep(1.0)
-    assert [t.text for t in sitl.statustexts(t0) if t.text.startswith("Lua")] == []
+    assert [t.text for t in sitl.gcs.statustexts(t0) if t.text.startswith("Lua")] == []
     companion.send_bytes(codec.encode(_alarm(_boot_ms(sitl), track_id=9)))
-    warn = sitl.wait_statustext(r"^TCM: collision course id 9 ttc 1\.5s$", 3.0, since_s=t0)
+    warn = sitl.gcs.wait_statustext(r"^TCM: collision course id 9 ttc 1\.5s$", 3.0, since_s=t0)
     assert warn.t_s > t0

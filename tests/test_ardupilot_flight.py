@@ -21,7 +21,6 @@ import pytest
 
 from tcm_companion.config import AppConfig
 from tcm_companion.sim.scene.autopilot_camera import SceneSettings
-from tcm_companion.sim.vehicle.ardupilot_sitl import ArduPilotSitl, skip_reason
 from tcm_companion.sitl.ardupilot import (
     APPLET,
     SITL_PARAMS,
@@ -29,6 +28,8 @@ from tcm_companion.sitl.ardupilot import (
     FlightReport,
     fly_scene,
 )
+from tcm_companion.sitl.ardupilot_process import skip_reason
+from tcm_companion.sitl.ardupilot_vehicle import ArduPilotSitl
 
 SKIP_REASON = skip_reason()
 pytestmark = [
@@ -137,11 +138,11 @@ def test_proximity_and_parameters_through_ardupilot(tmp_path: Path) -> None:
         out: dict[str, object] = {}
         async with daemon_on_sitl(config, sitl, camera, str(tmp_path)) as (task, endpoint):
             # the ground station reads our parameter through ArduPilot (component 191) ...
-            out["TCM_THRESH"] = await asyncio.to_thread(sitl.get_param, "TCM_THRESH", 191, 10.0)
+            out["TCM_THRESH"] = await asyncio.to_thread(sitl.gcs.get_param, "TCM_THRESH", 191, 10.0)
             out["healthy_before"] = sitl.proximity_healthy()
             # ... and sets one: OBSTACLE_DISTANCE on
             t_set = time.monotonic()
-            await asyncio.to_thread(sitl.set_param, "TCM_OUT_OBST", 1, 10.0, 191)
+            await asyncio.to_thread(sitl.gcs.set_param, "TCM_OUT_OBST", 1, 10.0, 191)
             out["daemon_value"] = endpoint.params.values["TCM_OUT_OBST"]
             await asyncio.to_thread(
                 sitl.gcs.wait_for, lambda: sitl.proximity_healthy() is True, 10.0, "PRX healthy"

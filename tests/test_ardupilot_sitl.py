@@ -20,13 +20,11 @@ from collections.abc import Callable, Iterator
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from tcm_companion.sim.vehicle.ardupilot_sitl import (
-    COPTER_MODES,
-    ArduPilotSitl,
-    MavlinkTcpClient,
-    Message,
-    skip_reason,
-)
+from tcm_companion.mavlink.copter_modes import COPTER_MODES
+from tcm_companion.mavlink.gcs import Message
+from tcm_companion.sitl.ardupilot_process import skip_reason
+from tcm_companion.sitl.ardupilot_vehicle import ArduPilotSitl
+from tcm_companion.sitl.gcs import GcsClient
 
 SKIP_REASON = skip_reason()
 pytestmark = [
@@ -100,12 +98,12 @@ def sitl(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ArduPilotSitl]:
 
 
 @pytest.fixture(scope="module")
-def companion(sitl: ArduPilotSitl) -> MavlinkTcpClient:
+def companion(sitl: ArduPilotSitl) -> GcsClient:
     """A companion on SERIAL1 as (1, 191), HEARTBEAT MAV_TYPE_ONBOARD_CONTROLLER at 1 Hz."""
     return sitl.connect(1, name="companion")
 
 
-def _obstacle_distance(client: MavlinkTcpClient, distances_cm: list[int]) -> Callable[[], Message]:
+def _obstacle_distance(client: GcsClient, distances_cm: list[int]) -> Callable[[], Message]:
     def build() -> Message:
         return client.mav.obstacle_distance_encode(
             int(time.monotonic() * 1e6),
@@ -122,10 +120,10 @@ def _obstacle_distance(client: MavlinkTcpClient, distances_cm: list[int]) -> Cal
     return build
 
 
-def _proximity_all_clear(sitl: ArduPilotSitl, companion: MavlinkTcpClient) -> None:
+def _proximity_all_clear(sitl: ArduPilotSitl, companion: GcsClient) -> None:
     """OBSTACLE_DISTANCE "nothing near" at 10 Hz (arming needs it: "PreArm: PRX1: No Data")."""
     companion.set_periodic("obstacle_distance", 10.0, _obstacle_distance(companion, ALL_CLEAR))
-    sitl.wait_for(sitl.proximity_healthy, 3.0, "proximity healthy")
+    sitl.gcs.wait_for(sitl.proximity_healthy, 3.0, "proximity healthy")
 
 
 def _lpn(sitl: ArduPilotSitl) -> Message:
@@ -136,7 +134,7 @@ def _lpn(sitl: ArduPilotSitl) -> Message:
 
 
 def _latest(sitl: ArduPilotSitl, msg_type: str) -> Message:
-    rec = sitl.latest(msg_type, (1, 1))
+    rec = sitl.gcs.latest(msg_type, (1, 1))
     assert rec is not None, f"no {msg_type} from (1, 1)"
     return rec.msg
 
@@ -146,10 +144,10 @@ def _speed_m_s(sitl: ArduPilotSitl) -> float:
     return math.hypot(lpn.vx, lpn.vy)
 
 
-def _ensure_flying(sitl: ArduPilotSitl, companion: MavlinkTcpClient, alt_m: float = 5.0) -> None:
+def _ensure_flying(sitl: ArduPilotSitl, companion: GcsClient, alt_m: float = 5.0) -> None:
     _proximity_all_clear(sitl, companion)
     lpn = sitl.local_position_ned()
-    if not sitl.armed or lpn is None or -lpn.z < alt_m - 1.0:
+    if not sitl.gcs.armed or lpn is None or -lpn.z < alt_m - 1.0:
         sitl.takeoff(alt_m)
     else:
         sitl.set_mode("GUIDED")
@@ -162,12 +160,12 @@ def test_boot_gps_and_real_time(sitl: ArduPilotSitl) -> None:
     timings = sitl.boot_timings_s
     print("boot timings (s):", {k: round(v, 3) for k, v in timings.items()})
     assert timings["total"] < 30.0
-    hb = sitl.latest("HEARTBEAT", (1, 1))
+    hb = sitl.gcs.latest("HEARTBEAT", (1, 1))
     assert hb is not None
     assert hb.msg.type == mavlink2.MAV_TYPE_QUADROTOR
     assert hb.msg.autopilot == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA
     assert sitl.ekf_uses_gps()
-    assert sitl.get_param("SIM_SPEEDUP") == 1.0
+    assert sitl.gcs.get_param("SIM_SPEEDUP") == 1.0
 
     lpn0 = _lpn(sitl)
     wall0 = time.monotonic()
@@ -181,9 +179,9 @@ def test_boot_gps_and_real_time(sitl: ArduPilotSitl) -> None:
 
 def test_lua_numbers_are_float32_with_32bit_integers(sitl: ArduPilotSitl) -> None:
     """ArduPilot's Lua: 32-bit integers and 32-bit float numbers (LUA_32BITS)."""
-    sitl.wait_statustext(r"^LF done$", 15.0, since_s=0.0)
+    sitl.gcs.wait_statustext(r"^LF done$", 15.0, since_s=0.0)
     facts = {}
-    for st in sitl.statustexts():
+    for st in sitl.gcs.statustexts():
         match = re.match(r"^LF (\w+)=(.*)$", st.text)
         if match:
             facts[match[1]] = match[2]
@@ -208,12 +206,10 @@ def test_lua_numbers_are_float32_with_32bit_integers(sitl: ArduPilotSitl) -> Non
     # 4294967295 as a float32 literal is 2^32, which uint32_t() wraps to 0
     assert facts["u32max"] == "0"
     assert facts["u32neg1"] == "4294967295"
-    assert not [s.text for s in sitl.statustexts() if s.text.startswith("Lua:")]
+    assert not [s.text for s in sitl.gcs.statustexts() if s.text.startswith("Lua:")]
 
 
-def test_late_clients_and_heartbeat_routing(
-    sitl: ArduPilotSitl, companion: MavlinkTcpClient
-) -> None:
+def test_late_clients_and_heartbeat_routing(sitl: ArduPilotSitl, companion: GcsClient) -> None:
     """SERIAL1/SERIAL2 accept clients after boot; heartbeats of other components are routed."""
     camera = sitl.connect(
         2,
@@ -224,8 +220,10 @@ def test_late_clients_and_heartbeat_routing(
     )
     camera.wait_message("HEARTBEAT", 3.0, src=(1, 1), since_s=0.0)
     companion.wait_message("HEARTBEAT", 3.0, src=(1, 1), since_s=0.0)
-    sitl.wait_message("HEARTBEAT", 3.0, src=(1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER), since_s=0.0)
-    sitl.wait_message("HEARTBEAT", 3.0, src=(1, mavlink2.MAV_COMP_ID_CAMERA), since_s=0.0)
+    sitl.gcs.wait_message(
+        "HEARTBEAT", 3.0, src=(1, mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER), since_s=0.0
+    )
+    sitl.gcs.wait_message("HEARTBEAT", 3.0, src=(1, mavlink2.MAV_COMP_ID_CAMERA), since_s=0.0)
     companion.wait_message("HEARTBEAT", 3.0, src=(255, 190), since_s=0.0)
     companion.wait_message("HEARTBEAT", 3.0, src=(1, mavlink2.MAV_COMP_ID_CAMERA), since_s=0.0)
     camera.close()
@@ -236,13 +234,13 @@ def test_sim_state_and_simstate(sitl: ArduPilotSitl) -> None:
     (1, 1) with the simulator's truth and no timestamp field."""
     gps = _latest(sitl, "GLOBAL_POSITION_INT")
     for msg_id in (mavlink2.MAVLINK_MSG_ID_SIM_STATE, mavlink2.MAVLINK_MSG_ID_SIMSTATE):
-        assert sitl.set_message_interval(msg_id, 5.0) == mavlink2.MAV_RESULT_ACCEPTED
+        assert sitl.gcs.set_message_interval(msg_id, 5.0) == mavlink2.MAV_RESULT_ACCEPTED
     try:
-        sim_state = sitl.wait_message("SIM_STATE", 2.0, src=(1, 1)).msg
-        simstate = sitl.wait_message("SIMSTATE", 2.0, src=(1, 1)).msg
+        sim_state = sitl.gcs.wait_message("SIM_STATE", 2.0, src=(1, 1)).msg
+        simstate = sitl.gcs.wait_message("SIMSTATE", 2.0, src=(1, 1)).msg
     finally:
         for msg_id in (mavlink2.MAVLINK_MSG_ID_SIM_STATE, mavlink2.MAVLINK_MSG_ID_SIMSTATE):
-            sitl.set_message_interval(msg_id, 0)
+            sitl.gcs.set_message_interval(msg_id, 0)
     print("SIM_STATE:", sim_state.to_dict())
     print("SIMSTATE:", simstate.to_dict())
     for msg in (sim_state, simstate):
@@ -254,17 +252,17 @@ def test_sim_state_and_simstate(sitl: ArduPilotSitl) -> None:
 
 
 def test_proximity_health_follows_obstacle_distance(
-    sitl: ArduPilotSitl, companion: MavlinkTcpClient
+    sitl: ArduPilotSitl, companion: GcsClient
 ) -> None:
     """OBSTACLE_DISTANCE (BODY_FRD, 72 x 5 deg, 10 Hz) from (1, 191) on SERIAL1 with PRX1_TYPE 2:
     SYS_STATUS bit MAV_SYS_STATUS_SENSOR_PROXIMITY (0x4000000) is present and enabled
     throughout, healthy ~0.05 s after the first message and unhealthy ~0.5 s after the last;
     DISTANCE_SENSOR (orientation = 45 deg sector) only for sectors with an obstacle."""
     companion.clear_periodic("obstacle_distance")
-    assert sitl.set_message_interval("SYS_STATUS", 20.0) == mavlink2.MAV_RESULT_ACCEPTED
-    assert sitl.set_message_interval("DISTANCE_SENSOR", 10.0) == mavlink2.MAV_RESULT_ACCEPTED
+    assert sitl.gcs.set_message_interval("SYS_STATUS", 20.0) == mavlink2.MAV_RESULT_ACCEPTED
+    assert sitl.gcs.set_message_interval("DISTANCE_SENSOR", 10.0) == mavlink2.MAV_RESULT_ACCEPTED
     try:
-        sitl.wait_for(lambda: sitl.proximity_healthy() is False, 3.0, "proximity unhealthy")
+        sitl.gcs.wait_for(lambda: sitl.proximity_healthy() is False, 3.0, "proximity unhealthy")
         status = _latest(sitl, "SYS_STATUS")
         bit = mavlink2.MAV_SYS_STATUS_SENSOR_PROXIMITY
         assert status.onboard_control_sensors_present & bit
@@ -272,9 +270,9 @@ def test_proximity_health_follows_obstacle_distance(
 
         t_first = time.monotonic()
         companion.set_periodic("obstacle_distance", 10.0, _obstacle_distance(companion, ONE_AHEAD))
-        sitl.wait_for(sitl.proximity_healthy, 2.0, "proximity healthy")
+        sitl.gcs.wait_for(sitl.proximity_healthy, 2.0, "proximity healthy")
         to_healthy_s = time.monotonic() - t_first
-        sensor = sitl.wait_message(
+        sensor = sitl.gcs.wait_message(
             "DISTANCE_SENSOR", 2.0, lambda m: m.current_distance == 1000, src=(1, 1)
         ).msg
         time.sleep(0.5)
@@ -283,12 +281,12 @@ def test_proximity_health_follows_obstacle_distance(
 
         t_last = time.monotonic()
         companion.clear_periodic("obstacle_distance")
-        sitl.wait_for(lambda: sitl.proximity_healthy() is False, 3.0, "proximity unhealthy")
+        sitl.gcs.wait_for(lambda: sitl.proximity_healthy() is False, 3.0, "proximity unhealthy")
         to_unhealthy_s = time.monotonic() - t_last
     finally:
         _proximity_all_clear(sitl, companion)
-        sitl.set_message_interval("SYS_STATUS", 5.0)
-        sitl.set_message_interval("DISTANCE_SENSOR", 0)
+        sitl.gcs.set_message_interval("SYS_STATUS", 5.0)
+        sitl.gcs.set_message_interval("DISTANCE_SENSOR", 0)
     print(f"proximity healthy after {to_healthy_s:.3f} s, unhealthy {to_unhealthy_s:.3f} s after")
     print("DISTANCE_SENSOR:", sensor.to_dict(), "sectors", sectors, "routed", len(routed))
     assert to_healthy_s < 1.0
@@ -299,14 +297,12 @@ def test_proximity_health_follows_obstacle_distance(
     assert routed, "OBSTACLE_DISTANCE from (1, 191) is routed to the ground station"
 
 
-def test_guided_takeoff_velocity_and_brake(
-    sitl: ArduPilotSitl, companion: MavlinkTcpClient
-) -> None:
+def test_guided_takeoff_velocity_and_brake(sitl: ArduPilotSitl, companion: GcsClient) -> None:
     """GUIDED takeoff to 5 m (~6.5 s incl. arming), north at 2 m/s by velocity set-points
     (reached in ~1.4 s), BRAKE by set_mode: below 0.5 m/s in ~1.5 s, 0.1 m/s in ~4 s."""
     _proximity_all_clear(sitl, companion)
     t0 = time.monotonic()
-    if not sitl.armed:
+    if not sitl.gcs.armed:
         sitl.takeoff(5.0)
     else:
         sitl.set_mode("GUIDED")
@@ -315,22 +311,22 @@ def test_guided_takeoff_velocity_and_brake(
 
     t0 = time.monotonic()
     sitl.fly_velocity(2.0, 0.0, 0.0)
-    sitl.wait_for(lambda: _lpn(sitl).vx > 1.8, 6.0, "north at 2 m/s")
+    sitl.gcs.wait_for(lambda: _lpn(sitl).vx > 1.8, 6.0, "north at 2 m/s")
     accel_s = time.monotonic() - t0
     time.sleep(2.0)
     cruise = _lpn(sitl)
     assert cruise.vx == pytest.approx(2.0, abs=0.3)
     assert abs(cruise.vy) < 0.3
     assert cruise.x - start.x > 3.0
-    assert sitl.mode == COPTER_MODES["GUIDED"]
+    assert sitl.gcs.mode == COPTER_MODES["GUIDED"]
 
     sitl.stop_velocity()
     t0 = time.monotonic()
     sitl.set_mode("BRAKE")
     mode_s = time.monotonic() - t0
-    sitl.wait_for(lambda: _speed_m_s(sitl) < 0.5, 5.0, "below 0.5 m/s")
+    sitl.gcs.wait_for(lambda: _speed_m_s(sitl) < 0.5, 5.0, "below 0.5 m/s")
     slow_s = time.monotonic() - t0
-    sitl.wait_for(lambda: _speed_m_s(sitl) < 0.1, 8.0, "below 0.1 m/s")
+    sitl.gcs.wait_for(lambda: _speed_m_s(sitl) < 0.1, 8.0, "below 0.1 m/s")
     stop_s = time.monotonic() - t0
     stopped = _lpn(sitl)
     print(
@@ -338,12 +334,12 @@ def test_guided_takeoff_velocity_and_brake(
         f" < 0.5 m/s after {slow_s:.2f} s, < 0.1 m/s after {stop_s:.2f} s,"
         f" {stopped.x - cruise.x:.2f} m after the command"
     )
-    assert sitl.mode == COPTER_MODES["BRAKE"]
-    assert [c.name for c in sitl.mode_changes()][-2:] == ["GUIDED", "BRAKE"]
+    assert sitl.gcs.mode == COPTER_MODES["BRAKE"]
+    assert [c.name for c in sitl.gcs.mode_changes()][-2:] == ["GUIDED", "BRAKE"]
     assert -stopped.z == pytest.approx(5.0, abs=1.0)
 
 
-def test_adsb_vehicle_drives_ap_avoidance(sitl: ArduPilotSitl, companion: MavlinkTcpClient) -> None:
+def test_adsb_vehicle_drives_ap_avoidance(sitl: ArduPilotSitl, companion: GcsClient) -> None:
     """ADSB_VEHICLE from (1, 191) on a collision course (ADSB_TYPE 1, AVD_ENABLE 1), hovering
     in GUIDED at 5 m:
 
@@ -357,9 +353,9 @@ def test_adsb_vehicle_drives_ap_avoidance(sitl: ArduPilotSitl, companion: Mavlin
       station, ArduPilot re-sends its own list from (1, 1) (when asked for ADSB_VEHICLE).
     """
     _ensure_flying(sitl, companion)
-    sitl.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_REPORT)
-    sitl.set_param("AVD_F_RCVRY", 1)  # resume the previous mode
-    assert sitl.set_message_interval("ADSB_VEHICLE", 5.0) == mavlink2.MAV_RESULT_ACCEPTED
+    sitl.gcs.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_REPORT)
+    sitl.gcs.set_param("AVD_F_RCVRY", 1)  # resume the previous mode
+    assert sitl.gcs.set_message_interval("ADSB_VEHICLE", 5.0) == mavlink2.MAV_RESULT_ACCEPTED
     gps = _latest(sitl, "GLOBAL_POSITION_INT")
 
     def threat(icao: int, callsign: str, north_m: float, speed_m_s: float) -> Callable[[], Message]:
@@ -388,12 +384,12 @@ def test_adsb_vehicle_drives_ap_avoidance(sitl: ArduPilotSitl, companion: Mavlin
 
     try:
         # 1. act (climb or descend), a tiny ICAO address
-        sitl.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_ASCEND_OR_DESCEND)
+        sitl.gcs.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_ASCEND_OR_DESCEND)
         t_a = time.monotonic()
         companion.set_periodic("adsb", 5.0, threat(1, "TCM0001", 80.0, 5.0))
-        sitl.wait_for(lambda: sitl.mode == COPTER_MODES["AVOID_ADSB"], 3.0, "AVOID_ADSB")
+        sitl.gcs.wait_for(lambda: sitl.gcs.mode == COPTER_MODES["AVOID_ADSB"], 3.0, "AVOID_ADSB")
         avoid_s = time.monotonic() - t_a
-        acting = sitl.wait_message(
+        acting = sitl.gcs.wait_message(
             "COLLISION",
             3.0,
             lambda m: m.id == 1 and m.action == mavlink2.MAV_COLLISION_ACTION_ASCEND_OR_DESCEND,
@@ -408,25 +404,27 @@ def test_adsb_vehicle_drives_ap_avoidance(sitl: ArduPilotSitl, companion: Mavlin
         # 2. the threat goes away
         t_b = time.monotonic()
         companion.clear_periodic("adsb")
-        sitl.wait_for(lambda: sitl.mode == COPTER_MODES["GUIDED"], 12.0, "recovery to GUIDED")
+        sitl.gcs.wait_for(
+            lambda: sitl.gcs.mode == COPTER_MODES["GUIDED"], 12.0, "recovery to GUIDED"
+        )
         recovery_s = time.monotonic() - t_b
 
         # 3. report only; our ICAO / callsign format
-        sitl.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_REPORT)
+        sitl.gcs.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_REPORT)
         t_c = time.monotonic()
         companion.set_periodic("adsb", 5.0, threat(0x7C0001, "TCM0001", 80.0, 5.0))
-        report = sitl.wait_message("COLLISION", 2.0, lambda m: m.id == 0x7C0001, since_s=t_c)
+        report = sitl.gcs.wait_message("COLLISION", 2.0, lambda m: m.id == 0x7C0001, since_s=t_c)
         report_s = report.t_s - t_c
-        relisted = sitl.wait_message(
+        relisted = sitl.gcs.wait_message(
             "ADSB_VEHICLE", 3.0, lambda m: m.ICAO_address == 0x7C0001, since_s=t_c, src=(1, 1)
         ).msg
         time.sleep(1.0)
-        mode_after_report = sitl.mode
+        mode_after_report = sitl.gcs.mode
     finally:
         companion.clear_periodic("adsb")
-        sitl.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_REPORT)
-        sitl.set_message_interval("ADSB_VEHICLE", 0)
-    texts = [s.text for s in sitl.statustexts(t_a)]
+        sitl.gcs.set_param("AVD_F_ACTION", mavlink2.MAV_COLLISION_ACTION_REPORT)
+        sitl.gcs.set_message_interval("ADSB_VEHICLE", 0)
+    texts = [s.text for s in sitl.gcs.statustexts(t_a)]
     routed = sitl.gcs.messages("ADSB_VEHICLE", t_a, src=(1, 191))
     collisions = sitl.gcs.messages("COLLISION", t_a)
     print(
@@ -446,4 +444,4 @@ def test_adsb_vehicle_drives_ap_avoidance(sitl: ArduPilotSitl, companion: Mavlin
     assert relisted.callsign == "TCM0001"
     assert not routed, "ArduPilot does not route the companion's ADSB_VEHICLE"
     assert not [t for t in texts if re.search(r"(?i)adsb|avoid|collision|threat", t)]
-    assert [c.name for c in sitl.mode_changes()][-2:] == ["AVOID_ADSB", "GUIDED"]
+    assert [c.name for c in sitl.gcs.mode_changes()][-2:] == ["AVOID_ADSB", "GUIDED"]

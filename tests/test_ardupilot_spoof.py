@@ -1,8 +1,8 @@
 """A spoofer beside the real ArduCopter firmware (issue 24 §3): the companion must not storm
 the firmware with COMMAND_LONG when a second sender poses as the autopilot on its link.
 
-ArduCopter SITL (``tcm_companion.sim.vehicle.ardupilot_sitl``) runs as usual; the
-companion's endpoint (:class:`~tcm_companion.service.link.CompanionLink`) reaches its
+ArduCopter SITL (``tcm_companion.sitl.ardupilot_vehicle``) runs as usual; the
+companion's endpoint (:class:`tests.mavlink_link.CompanionLink`) reaches its
 SERIAL2 through a TCP relay that stands for a shared link: it forwards the firmware's
 frames whole and slips in, between them, a second sender's frames as system 1 /
 component 1 — its own sequence numbers and boot clock, the clock going back, NaN
@@ -37,8 +37,10 @@ from tcm_companion.mavlink.endpoint import (
     TelemetryReceived,
     TelemetryRejected,
 )
-from tcm_companion.service.link import CompanionLink
-from tcm_companion.sim.vehicle.ardupilot_sitl import ArduPilotSitl, skip_reason
+from tcm_companion.sitl.ardupilot_process import skip_reason
+from tcm_companion.sitl.ardupilot_vehicle import ArduPilotSitl
+
+from .mavlink_link import CompanionLink
 
 SKIP_REASON = skip_reason()
 pytestmark = [

@@ -37,7 +37,8 @@ from tcm_companion.service.box_feed import (
     parse_box_datagram,
     parse_feed_url,
 )
-from tcm_companion.service.companion import Companion, DaemonConfig
+from tcm_companion.service.companion import Companion
+from tcm_companion.service.daemon_config import DaemonConfig
 from tcm_companion.sim.scene.detector_sim import DetectorSimConfig, simulate_detections
 from tcm_companion.sim.scene.export import SimulatedScenario
 

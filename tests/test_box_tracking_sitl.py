@@ -24,7 +24,7 @@ from tcm_companion.config import config_from_dict
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.sim.scene.truth import coverage_box_px, is_full_panorama
 from tcm_companion.sim.scene.truth_camera import SimulatedCamera
-from tcm_companion.sitl.mock import run_sitl
+from tcm_companion.sitl.mock_flight import run_sitl
 from tcm_companion.sitl.virtual import VirtualTimeModel
 
 LATENCY_US = 30_000  # the tracker's delay from a frame's instant to its message

@@ -329,7 +329,7 @@ def test_run_whose_camera_never_produced_a_frame_fails_at_the_end(tmp_path: Path
 
 
 def test_a_camera_whose_every_image_was_rejected_never_produced_a_frame() -> None:
-    from tcm_companion.cli.service import cameras_without_frames
+    from tcm_companion.cli.run import cameras_without_frames
     from tcm_companion.io.cameras.base import CameraStats
 
     stats = {
@@ -403,7 +403,7 @@ def test_run_on_a_scenario_takes_its_camera_model_and_says_so(tmp_path: Path) ->
 
 
 def test_the_scenario_camera_replaces_the_configured_one(caplog: pytest.LogCaptureFixture) -> None:
-    from tcm_companion.cli.service import camera_from_scenario
+    from tcm_companion.cli.scenario_camera import camera_from_scenario
     from tcm_companion.io.scenario import load_scenario
 
     declared = load_scenario(EXAMPLE_PINHOLE, check_frames=False).camera
@@ -972,7 +972,8 @@ def test_plot_of_a_flight_log_that_holds_nothing_to_plot_is_an_error(
 ) -> None:
     """A flight log with its metadata and nothing else (a run stopped at once): every plot
     is skipped, and that is exit 2 with one line, not a success with no picture."""
-    from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+    from tcm_companion.flightlog.settings import LoggingConfig
+    from tcm_companion.flightlog.writer import FlightLogWriter
 
     writer = FlightLogWriter(LoggingConfig(), tmp_path / "log")
     writer.start({"config": "{}"})

@@ -21,13 +21,10 @@ from tcm_companion.core.pipeline import Pipeline, PipelineConfig
 from tcm_companion.core.telemetry import AttitudeSample, PositionSample
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.endpoint import CompanionEndpoint, TelemetryReceived
-from tcm_companion.service.companion import (
-    Companion,
-    DaemonConfig,
-    FrameProcessed,
-    ParamsChanged,
-    latency_percentile_ms,
-)
+from tcm_companion.service.companion import Companion
+from tcm_companion.service.daemon_config import DaemonConfig
+from tcm_companion.service.health import latency_percentile_ms
+from tcm_companion.service.outputs import FrameProcessed, ParamsChanged
 from tcm_companion.sim.scene.export import SimulatedScenario
 
 from .helpers import CAMERA, Driver, decode, simulated_flight
@@ -376,7 +373,7 @@ def test_replay_frame_forces_the_clock_offset_and_the_override(flight: Any) -> N
 def test_attitude_time_mapping_uses_timesync_and_removes_the_link_latency() -> None:
     """Telemetry arriving 3 ms after it was stamped biases the envelope fit by 3 ms;
     with a fresh, agreeing TIMESYNC offset the pipeline's clock has no bias."""
-    from tcm_companion.service.companion import TimesyncClock
+    from tcm_companion.service.timesync_clock import TimesyncClock
 
     offset = 5_000_000_000  # companion monotonic - autopilot boot (µs)
     latency = 3_000

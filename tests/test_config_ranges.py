@@ -24,12 +24,64 @@ from tcm_companion.config import (
     Range,
     config_from_dict,
     config_to_toml,
-    describe_range,
     load_config,
 )
 from tcm_companion.core.camera import CameraModel, CameraModelError, camera_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def range_of(table: str, key: str) -> tuple[str, bool] | None:
+    """The :data:`RANGES` key of ``key`` written in ``[table]``, and whether it was
+    written in degrees for a field in radians."""
+    if f"{table}.{key}" in RANGES:
+        return f"{table}.{key}", False
+    if key.endswith("_deg") and f"{table}.{key[:-4]}_rad" in RANGES:
+        return f"{table}.{key[:-4]}_rad", True
+    return None
+
+
+def describe_range(key: str) -> str | None:
+    """The valid range of setting ``"table.key"`` as config.toml states it
+    (``"classifier.min_theta_deg"`` -> ``"[0, 90) deg"``); None for a key without one."""
+    table, _, name = key.rpartition(".")
+    found = range_of(table.removeprefix("pipeline."), name)
+    if found is None:
+        return None
+    spec = RANGES[found[0]]
+    return spec.text() if isinstance(spec, PerItem) else spec.text(deg=found[1])
+
+
+def test_shipped_config_states_each_settings_range() -> None:
+    """The comment of every numeric setting in config.toml (its line, and the indented
+    comment lines under it) states the range that the loader checks (config.RANGES)."""
+    table, checked, lines = "", [], (ROOT / "config.toml").read_text(encoding="utf-8").splitlines()
+    for i, line in enumerate(lines):
+        if m := re.match(r"\[([a-z_.]+)\]\s*$", line):
+            table = m[1]
+            continue
+        m = re.match(r"([a-z_0-9]+)\s*=\s*(.*)$", line)
+        if not m:
+            continue
+        key = f"{table}.{m[1]}"
+        value = tomllib.loads(line)[m[1]]
+        numeric = not isinstance(value, str | bool) and (
+            not isinstance(value, list) or all(not isinstance(v, str | bool) for v in value)
+        )
+        expected = describe_range(key)
+        if not numeric:
+            assert expected is None, key
+            continue
+        assert expected is not None, f"{key}: no range in config.RANGES"
+        comment = line.partition("#")[2]
+        for more in lines[i + 1 :]:
+            if not re.match(r"\s+#", more):
+                break
+            comment += " " + more.partition("#")[2].strip()
+        assert expected in comment, f"config.toml {key}: the comment should state {expected}"
+        checked.append(key)
+    assert "classifier.tcm_threshold" in checked and "camera.front.cx" in checked
+
 
 PINHOLE: dict[str, Any] = {
     "model": "pinhole",

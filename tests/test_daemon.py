@@ -36,7 +36,7 @@ from tcm_companion.io.cameras.base import CameraGone, FrameSource
 from tcm_companion.mavlink.endpoint import EndpointConfig
 from tcm_companion.sim.scene.truth_camera import SimulatedCamera
 from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
-from tcm_companion.sitl.mock import SitlReport, run_sitl
+from tcm_companion.sitl.mock_flight import SitlReport, run_sitl
 from tcm_companion.sitl.virtual import VIRTUAL_START_MONO_US
 
 pytestmark = pytest.mark.slow  # SITL runs (virtual and real time), the daemon in a subprocess

@@ -38,6 +38,7 @@ from tcm_companion.core.detection.onnx_yolo import Letterbox
 from tcm_companion.core.detection.settings import hue_plan
 from tcm_companion.core.frames import angle_between
 from tcm_companion.core.pipeline import Pipeline, PipelineConfig
+from tcm_companion.io.detector_model import read_detector_model
 
 from .test_detection import CAMERAS, Ball, ball_at, render
 from .yolo_graphs import constant_model, red_box_model
@@ -116,6 +117,7 @@ def backend_for(
             onnx_class_names=("ball",),
             **cfg,  # type: ignore[arg-type]
         ),
+        model.read_bytes(),
     )
     return det, lambda t_us: None
 
@@ -220,7 +222,7 @@ def test_tracking_is_the_same_whichever_backend(backend: str, tmp_path: Path) ->
         )
     app = AppConfig()
     cfg = PipelineConfig(detection=det_cfg)
-    pipe = Pipeline(cam, cfg)
+    pipe = Pipeline(cam, cfg, detector_model=read_detector_model(det_cfg))
     rows = scenario_detections(sim) if backend == "boxes" else None
     results = list(run_replay(sim, app, pipe, rows))
     ids = {o.track_id for r in results[5:] for o in r.objects if o.detected}

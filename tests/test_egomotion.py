@@ -16,9 +16,9 @@ from tcm_companion.core.egomotion import (
     fuse,
     translation_from_bearings,
     translation_from_positions,
-    translation_from_velocities,
 )
 from tcm_companion.core.frames import angle_between, normalize
+from tools.egomotion_study import translation_from_velocities
 
 
 def static_scene(

@@ -148,7 +148,7 @@ def test_vector_norm_and_rotate_by_vector_equal_numpy() -> None:
     assert frames.vector_norm([3.0, 4.0]) == 5.0  # not an array: numpy's own call
 
 
-# -- the daemon around the pipeline (docs/decisions.md §8, third round) -------------------
+# -- the daemon around the pipeline (docs/decisions.md §8.3) -------------------
 
 
 def _annotation_circles_ref(result, camera):  # type: ignore[no-untyped-def]

@@ -28,6 +28,7 @@ from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from tcm_companion.flightlog import encoding as log_encoding
 from tcm_companion.flightlog import reader as log_reader
 from tcm_companion.flightlog import topics
 from tcm_companion.flightlog import writer as fl
@@ -40,7 +41,9 @@ from tcm_companion.flightlog.reader import (
     read_log,
     read_metadata,
 )
-from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+from tcm_companion.flightlog.settings import LoggingConfig
+from tcm_companion.flightlog.stats import FlightLogStats
+from tcm_companion.flightlog.writer import FlightLogWriter
 from tcm_companion.io.aio import monotonic_us
 
 REPO = Path(__file__).resolve().parents[1]
@@ -94,7 +97,7 @@ def writer_with_events(
     return w, events
 
 
-def frames_account(s: fl.FlightLogStats, calls: int) -> None:
+def frames_account(s: FlightLogStats, calls: int) -> None:
     assert (
         s.frames_logged + s.frames_dropped_queue + s.frames_dropped_disk + s.frames_dropped_error
         == calls
@@ -130,10 +133,10 @@ def test_defaults_and_state_codes_match_the_dialect(tmp_path: Path) -> None:
 
     c = LoggingConfig()
     assert (c.queue_items, c.chunk_size_bytes, c.flush_interval_s) == (256, 262_144, 0.5)
-    assert fl.FlightLogStats(state="off").log_state_code == d.TCM_LOG_STATE_OFF
-    assert fl.FlightLogStats(state="recording").log_state_code == d.TCM_LOG_STATE_RECORDING
-    assert fl.FlightLogStats(state="frames paused (disk)").log_state_code == 1
-    assert fl.FlightLogStats(state="fault").log_state_code == d.TCM_LOG_STATE_FAULT
+    assert FlightLogStats(state="off").log_state_code == d.TCM_LOG_STATE_OFF
+    assert FlightLogStats(state="recording").log_state_code == d.TCM_LOG_STATE_RECORDING
+    assert FlightLogStats(state="frames paused (disk)").log_state_code == 1
+    assert FlightLogStats(state="fault").log_state_code == d.TCM_LOG_STATE_FAULT
 
     # disabled: nothing written, calls refused and counted, stop idempotent
     w = FlightLogWriter(LoggingConfig(enabled=False), tmp_path / "off")
@@ -455,14 +458,14 @@ def test_full_queue_drops_and_counts_but_never_blocks(
     # The writer is stuck (its image encoder waits until released): a producer that
     # blocked on the full queue would never get through its calls. No wall-clock bound
     # on each call (a loaded machine would fail that): the calls must simply all return.
-    real_encode = FlightLogWriter._encode_image
+    real_encode = log_encoding.encode_image
     release = threading.Event()
 
-    def stuck_encode(self: FlightLogWriter, image: np.ndarray) -> bytes:
+    def stuck_encode(image: np.ndarray, config: LoggingConfig) -> bytes:
         release.wait(30.0)
-        return real_encode(self, image)
+        return real_encode(image, config)
 
-    monkeypatch.setattr(FlightLogWriter, "_encode_image", stuck_encode)
+    monkeypatch.setattr(log_encoding, "encode_image", stuck_encode)
     w = FlightLogWriter(LoggingConfig(queue_items=8), tmp_path, wall_minus_mono_ns=WALL)
     w.start({})
     img = noise_image(1)
@@ -505,7 +508,8 @@ CRASH_WRITER = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+    from tcm_companion.flightlog.settings import LoggingConfig
+    from tcm_companion.flightlog.writer import FlightLogWriter
 
     w = FlightLogWriter(LoggingConfig(), sys.argv[1])  # default flush interval and chunks
     w.start({"test": "crash"})
@@ -864,7 +868,7 @@ def test_a_live_writer_is_woken_by_frames_not_by_every_item(tmp_path: Path) -> N
     """Live, the writer thread wakes for a frame (25 Hz), a half-full queue, its own
     timers or stop, and writes what came in meanwhile with it: a wake-up per MAVLink
     datagram or result cost the loop a futex call and a GIL hand-over each (issue 15,
-    docs/decisions.md §8, third round). Before, every item woke it."""
+    docs/decisions.md §8.3). Before, every item woke it."""
     w = FlightLogWriter(
         LoggingConfig(flush_interval_s=5.0, queue_items=64),
         tmp_path,

@@ -27,7 +27,7 @@ from tcm_companion.flightlog.reader import (
     read_metadata,
     select_flight,
 )
-from tcm_companion.sitl.mock import SitlReport, run_sitl_virtual
+from tcm_companion.sitl.mock_flight import SitlReport, run_sitl_virtual
 
 from .test_damaged_inputs import REFERENCE, split_log
 

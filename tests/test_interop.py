@@ -66,6 +66,7 @@ import pytest
 from tcm_companion.core.classify import Classification
 from tcm_companion.core.frames import bearing_from_azel
 from tcm_companion.core.pipeline import FrameResult, ObjectResult
+from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.transports import (
     Transport,
     TransportClosed,
@@ -77,10 +78,11 @@ from tcm_companion.io.transports.socat import SocatPtyPair, socat_available
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.endpoint import CompanionEndpoint, Event, ParamChanged
 from tcm_companion.mavlink.params import PARAMS
-from tcm_companion.service.link import CompanionLink, monotonic_us
 from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 from tcm_companion.sim.vehicle.mock_autopilot import ParamChanged as MockParamChanged
 from tcm_companion.sim.vehicle.mock_autopilot_run import run_mock_autopilot
+
+from .mavlink_link import CompanionLink
 
 ROOT = Path(__file__).resolve().parents[1]
 XML = ROOT / "tcm_companion" / "mavlink" / "tcm.xml"

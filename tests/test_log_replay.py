@@ -36,11 +36,11 @@ import pytest
 
 from tcm_companion.config import AppConfig
 from tcm_companion.flightlog.reader import decode_json, read_log
-from tcm_companion.flightlog.writer import LoggingConfig
+from tcm_companion.flightlog.settings import LoggingConfig
 from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.results import ResultsWriter
 from tcm_companion.replay.log import ROUNDING_REL_TOL, compare, replay_log
-from tcm_companion.sitl.mock import run_sitl
+from tcm_companion.sitl.mock_flight import run_sitl
 
 from .numerics import numeric_environment
 
@@ -304,7 +304,7 @@ def test_a_jpeg_log_fails_the_check_and_says_why(
     frame(s) differ" and no reason. Replay runs on the decoded JPEG, not on the frames the
     daemon processed: say so, and how to log PNG."""
     from tcm_companion import cli
-    from tcm_companion.sitl.mock import run_sitl_virtual
+    from tcm_companion.sitl.mock_flight import run_sitl_virtual
 
     report = run_sitl_virtual(
         AppConfig(), duration_s=3.0, state_dir=str(tmp_path / "s"), log_dir=str(tmp_path / "l")

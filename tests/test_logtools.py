@@ -22,7 +22,8 @@ import pytest
 from tcm_companion.config import AppConfig
 from tcm_companion.flightlog import reader
 from tcm_companion.flightlog.docs import annotation_circles
-from tcm_companion.flightlog.writer import FlightLogWriter, LoggingConfig
+from tcm_companion.flightlog.settings import LoggingConfig
+from tcm_companion.flightlog.writer import FlightLogWriter
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.io.tlog import read_tlog
 from tcm_companion.logtools import (

@@ -843,7 +843,7 @@ def test_closed_loop_sitl_the_daemon_drives_the_applet_to_brake(tmp_path: Path) 
     from tcm_companion.config import AppConfig
     from tcm_companion.sim.vehicle.lua_applet import LuaAppletAutopilot
     from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
-    from tcm_companion.sitl.mock import run_sitl
+    from tcm_companion.sitl.mock_flight import run_sitl
     from tcm_companion.sitl.virtual import (
         VIRTUAL_START_MONO_US,
         VIRTUAL_UNIX_US_AT_START,

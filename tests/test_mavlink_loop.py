@@ -18,12 +18,13 @@ from tcm_companion.mavlink.endpoint import (
     CompanionEndpoint,
     TelemetryReceived,
 )
-from tcm_companion.service.link import CompanionLink
 from tcm_companion.sim.vehicle.mock_autopilot import (
     BrakeStarted,
     MockAutopilot,
     MockAutopilotConfig,
 )
+
+from .mavlink_link import CompanionLink
 
 START = 5_000_000_000  # µs on the shared simulated clock
 

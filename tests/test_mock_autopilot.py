@@ -24,9 +24,8 @@ from tcm_companion.cli.sim import add_mock_autopilot_arguments
 from tcm_companion.io.transports import memory_pair
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.mavlink.codec import MavlinkCodec
+from tcm_companion.mavlink.tcm_dialect import COPTER_MODE_BRAKE, COPTER_MODE_GUIDED
 from tcm_companion.sim.vehicle.mock_autopilot import (
-    COPTER_MODE_BRAKE,
-    COPTER_MODE_GUIDED,
     BrakeStarted,
     BrakingPath,
     CommandReceived,

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tcm_companion.service.companion import FrameProcessed
+from tcm_companion.service.outputs import FrameProcessed
 from tcm_companion.service.plumbing import Plumbing, SampleRing
 
 

@@ -22,7 +22,9 @@ import numpy as np
 import pytest
 
 from tcm_companion import cli
-from tcm_companion.cli import service
+from tcm_companion.cli import sitl as sitl_cli
+from tcm_companion.cli import status_line
+from tcm_companion.cli.interrupts import RunSignals
 from tcm_companion.service.plumbing import run_length_text
 
 
@@ -43,15 +45,15 @@ def command(*argv: str) -> int:
 def signal_at_status(monkeypatch: pytest.MonkeyPatch, sig: signal.Signals, n: int) -> list[str]:
     """The command's status line raises ``sig`` at its ``n``-th update; the updates."""
     seen: list[str] = []
-    real = service._StatusPrinter.__call__
+    real = status_line.StatusPrinter.__call__
 
-    def call(self: service._StatusPrinter, line: str) -> None:
+    def call(self: status_line.StatusPrinter, line: str) -> None:
         real(self, line)
         seen.append(line)
         if len(seen) == n:
             signal.raise_signal(sig)
 
-    monkeypatch.setattr(service._StatusPrinter, "__call__", call)
+    monkeypatch.setattr(status_line.StatusPrinter, "__call__", call)
     return seen
 
 
@@ -100,7 +102,7 @@ def test_log_records_go_above_the_live_line_on_a_terminal(
     root_handler: tuple[logging.Logger, FakeTerminal],
 ) -> None:
     root, term = root_handler
-    printer = service._StatusPrinter(stream=term)
+    printer = status_line.StatusPrinter(stream=term)
     with printer.logs_above():
         printer("objects 1 (1 moving) | 25.0 fps")
         logging.getLogger("tcm_companion.x").warning("input camera0: camera0 stale")
@@ -114,19 +116,19 @@ def test_log_records_go_above_the_live_line_on_a_terminal(
     ]
     # Afterwards the handler is the logger's own again.
     assert root.handlers and isinstance(root.handlers[0], logging.StreamHandler)
-    assert not isinstance(root.handlers[0], service._AboveStatusLine)
+    assert not isinstance(root.handlers[0], status_line.AboveStatusLine)
 
 
 def test_the_live_line_fits_one_row_and_plain_output_gets_every_nth(
     root_handler: tuple[logging.Logger, FakeTerminal],
 ) -> None:
     _, term = root_handler
-    printer = service._StatusPrinter(stream=term)
+    printer = status_line.StatusPrinter(stream=term)
     printer._width = lambda: 30  # type: ignore[method-assign]
     printer("x" * 100)
     assert screen(term.getvalue()) == ["x" * 30]
     pipe = io.StringIO()
-    plain = service._StatusPrinter(stream=pipe, every=2)
+    plain = status_line.StatusPrinter(stream=pipe, every=2)
     for k in range(5):
         plain(f"line {k}")
     assert pipe.getvalue() == "line 0\nline 2\nline 4\n"
@@ -141,7 +143,7 @@ def test_status_every_0_means_no_status_line(capsys: pytest.CaptureFixture[str])
     assert code == 0, out + err
     assert "SITL T90: 1.5 s, virtual clock" in out
     assert "fps" not in err and "fps" not in out
-    with service._status_printer(0) as printer:
+    with status_line.status_printer(0) as printer:
         assert printer is None
     with pytest.raises(SystemExit):
         command("sitl", "--status-every", "-1")
@@ -185,7 +187,7 @@ def test_how_a_run_ended_reads() -> None:
     assert run_length_text(7.0, None, "SIGTERM") == "stopped after 7.0 s (SIGTERM)"
     assert run_length_text(7.0, None, "SIGINT") == "interrupted after 7.0 s (SIGINT)"
     assert run_length_text(4.0, 60.0, "stop") == "stopped after 4.0 of 60 s"
-    status = service._Signals.exit_status
+    status = RunSignals.exit_status
     assert status(True, "") == 0 and status(False, "") == 1
     assert status(True, "SIGINT") == 130 and status(False, "SIGINT") == 130
     assert status(True, "SIGTERM") == 143
@@ -289,7 +291,7 @@ def test_ctrl_c_before_the_run_starts_is_one_line_and_130(
     def interrupted(*a: Any, **k: Any) -> Any:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(service, "config_from_args", interrupted)
+    monkeypatch.setattr(sitl_cli, "config_from_args", interrupted)
     assert command("sitl", "--clock", "virtual") == 130
     assert capsys.readouterr().err.strip() == "interrupted (SIGINT)"
 

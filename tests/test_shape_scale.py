@@ -16,14 +16,14 @@ from tcm_companion.core.classify import FIT_WINDOW_S, ClassifierConfig
 from tcm_companion.core.detection.boxes import Box, BoxesDetector, BoxGeometry, image_axes_cam
 from tcm_companion.core.detection.settings import DetectionConfig
 from tcm_companion.core.frames import angle_between, normalize
-from tcm_companion.core.tcm import (
+from tcm_companion.core.ttc import robust_level_at
+from tools.shape_scale_study import (
     box_extent_across_rad,
     box_mean_extent_rad,
     epipolar_normal,
     extent_ratio,
     feature_scale_ratio,
 )
-from tcm_companion.core.ttc import robust_level_at
 
 
 def _rot_z(a: float) -> np.ndarray:

@@ -18,7 +18,7 @@ import pytest
 from tcm_companion.config import AppConfig
 from tcm_companion.flightlog.reader import read_log, read_metadata
 from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
-from tcm_companion.sitl.mock import SitlReport, run_sitl, run_sitl_virtual
+from tcm_companion.sitl.mock_flight import SitlReport, run_sitl, run_sitl_virtual
 from tcm_companion.sitl.virtual import (
     VIRTUAL_START_MONO_US,
     VIRTUAL_UNIX_US_AT_START,

@@ -18,8 +18,9 @@ import tempfile
 
 from tcm_companion.config import AppConfig
 from tcm_companion.sim.scene.autopilot_camera import SceneSettings
-from tcm_companion.sim.vehicle.ardupilot_sitl import ArduPilotSitl, skip_reason
 from tcm_companion.sitl.ardupilot import APPLET, SITL_PARAMS, FlightPlanAP, fly_scene
+from tcm_companion.sitl.ardupilot_process import skip_reason
+from tcm_companion.sitl.ardupilot_vehicle import ArduPilotSitl
 
 
 def main() -> int:

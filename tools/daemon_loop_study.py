@@ -1,4 +1,4 @@
-"""Where the daemon's CPU goes besides the pipeline (docs/decisions.md §8, third round).
+"""Where the daemon's CPU goes besides the pipeline (docs/decisions.md §8.3).
 
 Runs the daemon as ``tcm-companion bench --daemon`` runs it (frames of the simulated T90
 flight from PNG files at 25 Hz, 360×220, looped; the mock autopilot in its own process
@@ -56,7 +56,7 @@ def _as_daemon(argv: list[str]) -> None:
             acc["step_s"] += time.thread_time() - t0
             acc["frames"] += 1
 
-    health = plumbing.Plumbing._health_checked
+    health = plumbing.Plumbing.health_checked
 
     def checked(self, hc):  # type: ignore[no-untyped-def]
         if self.health_checks == 9:  # the 10th second: start-up is over
@@ -76,7 +76,7 @@ def _as_daemon(argv: list[str]) -> None:
             )
 
     pipeline.Pipeline.step = timed_step  # type: ignore[method-assign]
-    plumbing.Plumbing._health_checked = checked  # type: ignore[method-assign]
+    plumbing.Plumbing.health_checked = checked  # type: ignore[method-assign]
     atexit.register(report)
     sys.argv = ["tcm-companion", *argv]
     main()

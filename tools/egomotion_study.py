@@ -112,10 +112,10 @@ from tcm_companion.core.egomotion import (
     fuse,
     translation_from_bearings,
     translation_from_positions,
-    translation_from_velocities,
+    translation_from_vector,
 )
 from tcm_companion.core.flow import FlowConfig, FlowTracker
-from tcm_companion.core.frames import angle_between
+from tcm_companion.core.frames import FloatArray, angle_between
 from tcm_companion.core.telemetry import TelemetryBuffer, TelemetrySample
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "examples"
@@ -148,6 +148,29 @@ class Flight:
         if self._gray is None:
             self._gray = [cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) for _, _, img in self.source()]
         return self._gray
+
+
+def translation_from_velocities(
+    t_us: np.ndarray,
+    vel_ned_mps: FloatArray,
+    config: EgomotionConfig | None = None,
+    velocity_sigma_mps: float = 0.1,
+) -> TranslationEstimate:
+    """Translation from velocity samples integrated over time (trapezoid rule).
+
+    ``t_us``: (M,) sample times in microseconds (increasing), ``vel_ned_mps``: (M, 3). The
+    integral spans the first to the last sample. ``velocity_sigma_mps`` is the white noise
+    of one sample; the noise of the integral assumes independent samples.
+    """
+    cfg = config or EgomotionConfig()
+    t = np.asarray(t_us, np.float64) * 1e-6
+    v = np.asarray(vel_ned_mps, np.float64).reshape(-1, 3)
+    if len(t) < 2 or not np.all(np.isfinite(v)) or not np.all(np.diff(t) > 0):
+        return TranslationEstimate.invalid("autopilot")
+    dt = np.diff(t)
+    T = np.sum(0.5 * (v[1:] + v[:-1]) * dt[:, None], axis=0)
+    noise = velocity_sigma_mps * math.sqrt(float(np.sum(dt * dt)))
+    return translation_from_vector(T, noise, "autopilot", cfg.max_sigma_rad)
 
 
 def _truth_positions(truth: Any, n_frames: int) -> np.ndarray:

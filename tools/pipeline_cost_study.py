@@ -22,7 +22,7 @@ and bsm; egomotion sources fused, vision and autopilot), a SHA-256 of every fiel
 every ``FrameResult`` (floats as hex, stage timings left out), of the flow's live points
 after each frame and of the Fig. 4 disparities hook: two trees whose lines are equal
 give the same results to the bit on these frames. Issue 15's second round (the
-per-frame overhead cut without changing a result; NOTES in docs/decisions.md §8) was
+per-frame overhead cut without changing a result; NOTES in docs/decisions.md §8.2) was
 checked with::
 
     cd /tmp/wB-base && PYTHONPATH=/tmp/wB-base /work/main/.venv/bin/python \

@@ -25,7 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tcm_companion.bench.pipeline import _frames, _time_method
+from tcm_companion.bench.pipeline import rendered_frames, time_stages
 from tcm_companion.config import AppConfig
 from tcm_companion.io.allocator import tune_allocator
 
@@ -61,8 +61,8 @@ def main() -> None:
     tune_allocator()  # as the CLI (and so the daemon) does
     cv2.setNumThreads(1)
     config = AppConfig()
-    sim, frames = _frames((360, 220), n)
-    _time_method(config, sim, frames[:60])  # warm-up pass (one-off costs)
+    sim, frames = rendered_frames((360, 220), n)
+    time_stages(config, sim, frames[:60])  # warm-up pass (one-off costs)
     print(f"pipeline total, ms per frame ({n} frames of T90, 360x220, default config)")
     print(f"{'pacing':<58} {'p50':>6} {'p90':>6} {'p99':>6}")
     variants = [
@@ -74,9 +74,9 @@ def main() -> None:
         t0 = time.monotonic()
         if decode:
             with _Decoder(frames[0][2]):
-                t = _time_method(config, sim, frames, gap_s=gap_s)["total"]
+                t = time_stages(config, sim, frames, gap_s=gap_s)["total"]
         else:
-            t = _time_method(config, sim, frames, gap_s=gap_s)["total"]
+            t = time_stages(config, sim, frames, gap_s=gap_s)["total"]
         p50, p90, p99 = np.percentile(t, [50, 90, 99])
         print(f"{name:<58} {p50:6.2f} {p90:6.2f} {p99:6.2f}   ({time.monotonic() - t0:.0f} s)")
 

@@ -10,10 +10,10 @@ ranges to the object's centre) over pairs of frames ``--interval-s`` apart (ever
 - ``a``  features: points found (``cv2.goodFeaturesToTrack``) inside the object's true box
   in the rendered earlier frame, followed into the later one by pyramidal Lucas–Kanade
   (started from the box centre's shift, forward–backward checked), the median of pairwise
-  separation ratios (:func:`~tcm_companion.core.tcm.feature_scale_ratio`);
+  separation ratios (:func:`feature_scale_ratio`);
 - ``a⊥`` the same, separations measured along the epipolar normal only;
 - ``b``  the box's extent along the image direction perpendicular to the translation
-  (:func:`~tcm_companion.core.tcm.box_extent_across_rad`);
+  (:func:`box_extent_across_rad`);
 - ``c``  the box's geometric mean ``√(θw·θh)`` (the boxes backend before this study);
 - ``diag`` the box's diagonal ``√(θw² + θh²)``; ``w``, ``h`` its width and height alone;
 - ``area`` the radius of the cap with the silhouette's solid angle (what the colour
@@ -56,18 +56,98 @@ import numpy as np
 from tcm_companion.core.camera import Equirectangular
 from tcm_companion.core.detection.base import angular_radius_from_solid_angle
 from tcm_companion.core.detection.boxes import Box, BoxGeometry, image_axes_cam
-from tcm_companion.core.frames import normalize
-from tcm_companion.core.tcm import (
-    box_extent_across_rad,
-    box_mean_extent_rad,
-    epipolar_normal,
-    extent_ratio,
-    feature_scale_ratio,
-)
+from tcm_companion.core.frames import FloatArray, angle_between, cross3, normalize
 from tcm_companion.core.ttc import robust_level_at
 from tcm_companion.sim import make_scenario
 from tcm_companion.sim.scene.detector_sim import simulate_detections
 from tcm_companion.sim.scene.export import SimulatedScenario
+
+
+# --------------------------------------------------------------------------------------
+# Looming for any shape: the range ratio d0/d1 from two images of a non-spherical object
+# (issue 14 §2; docs/decisions.md §9 measures them). For a sphere sin α1 / sin α0 is exact;
+# for a box, a cylinder or a person the size seen also changes with the viewpoint, which
+# the translation turns about the epipolar plane's normal n = b × T̂. An object's extent
+# along n does not change under that turn (the projection of a solid onto an axis normal
+# to the line of sight is its extent along that axis, whatever the viewpoint), so it
+# scales exactly as 1/d for a stationary object.
+# --------------------------------------------------------------------------------------
+def epipolar_normal(t_hat_ned: FloatArray, b_ned: FloatArray) -> FloatArray:
+    """Unit normal ``b × T̂`` of the epipolar plane through bearing ``b_ned`` (NaN when
+    ``b_ned`` lies on the translation axis). Frames: both in the same world-aligned frame."""
+    n = np.asarray(cross3(np.asarray(b_ned, np.float64), np.asarray(t_hat_ned, np.float64)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def box_mean_extent_rad(theta_w_rad: float, theta_h_rad: float) -> float:
+    """Estimator (c): the box's geometric-mean extent ``√(θw·θh)`` (rad), what the boxes
+    backend reports as twice its angular radius."""
+    return math.sqrt(theta_w_rad * theta_h_rad)
+
+
+def box_extent_across_rad(
+    theta_w_rad: float,
+    theta_h_rad: float,
+    u_axis: FloatArray,
+    v_axis: FloatArray,
+    normal: FloatArray,
+) -> float:
+    """Estimator (b): the extent (rad) of an image-aligned box along ``normal``, the image
+    direction perpendicular to the translation (:func:`epipolar_normal`).
+
+    ``theta_w_rad``, ``theta_h_rad``: the angles across the box along the image's u and v
+    axes; ``u_axis``, ``v_axis``: unit tangent directions of those axes at the box's centre
+    and ``normal`` a unit vector, all three in one frame (e.g. NED). A box only knows its
+    extents along u and v, so along a direction between them it gives the width of the
+    rectangle's projection, ``θw |n·u| + θh |n·v|`` (exact along either axis).
+    """
+    nu = abs(float(np.dot(normal, u_axis)))
+    nv = abs(float(np.dot(normal, v_axis)))
+    return theta_w_rad * nu + theta_h_rad * nv
+
+
+def extent_ratio(extent0_rad: float, extent1_rad: float) -> float:
+    """``d0/d1`` from an extent measured at both observations, ``sin(e1/2) / sin(e0/2)``
+    (for a sphere's diameter exactly ``sin α1 / sin α0``)."""
+    return math.sin(0.5 * extent1_rad) / math.sin(0.5 * extent0_rad)
+
+
+def feature_scale_ratio(
+    b0_ned: FloatArray,
+    b1_ned: FloatArray,
+    normal_ned: FloatArray | None = None,
+    min_separation_rad: float = 0.0,
+) -> float:
+    """Estimator (a): ``d0/d1`` from N points tracked on the object between the two
+    observations: the median over pairs of points of the ratio of their separations,
+    later over earlier (the scale change; robust to a few bad tracks).
+
+    ``b0_ned``, ``b1_ned``: (N, 3) unit bearings of the same points at the two
+    observations, in one world-aligned frame (for plain separations any frame per
+    observation will do: angles between bearings do not depend on it). With
+    ``normal_ned`` (the epipolar normal, :func:`epipolar_normal`), only the separations'
+    components along it are compared (invariant to the viewpoint's turn). Pairs closer
+    than ``min_separation_rad`` in the earlier image are ignored (their ratio is noise).
+    NaN with no usable pair.
+    """
+    p0 = np.asarray(b0_ned, np.float64).reshape(-1, 3)
+    p1 = np.asarray(b1_ned, np.float64).reshape(-1, 3)
+    if len(p0) < 2 or len(p0) != len(p1):
+        return math.nan
+    i, j = np.triu_indices(len(p0), k=1)
+    if normal_ned is None:
+        s0 = angle_between(p0[i], p0[j])
+        s1 = angle_between(p1[i], p1[j])
+    else:
+        n = np.asarray(normal_ned, np.float64)
+        s0 = np.abs((p0[i] - p0[j]) @ n)
+        s1 = np.abs((p1[i] - p1[j]) @ n)
+    keep = (s0 > max(min_separation_rad, 1e-12)) & np.isfinite(s0) & np.isfinite(s1)
+    if not np.any(keep):
+        return math.nan
+    return float(np.median(s1[keep] / s0[keep]))
+
 
 TRUTH_ESTIMATORS = ("a", "a⊥", "b", "c", "diag", "w", "h", "area")
 NOISY_ESTIMATORS = ("b", "c", "diag")

@@ -26,7 +26,7 @@ HEADON flight gives the time-to-contact error per rate.
     .venv/bin/python tools/time_base_study.py --more     # ~17 min, one job at a time
     .venv/bin/python tools/time_base_study.py --quick    # 15-s flights, seeds 0 and 1
 
-The printed tables are quoted in docs/decisions.md (section 7).
+The printed tables are quoted in docs/decisions.md §7.
 """
 
 from __future__ import annotations

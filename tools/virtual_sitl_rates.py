@@ -15,7 +15,7 @@ virtual`` would say.
     .venv/bin/python tools/virtual_sitl_rates.py              # T45 and T90, 30 s each
     .venv/bin/python tools/virtual_sitl_rates.py --duration 10 --scenarios T90
 
-The table it prints is quoted in docs/decisions.md (section 7).
+The table it prints is quoted in docs/decisions.md §7.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 from tcm_companion.config import AppConfig
 from tcm_companion.io.cameras.base import FrameSource
 from tcm_companion.sim.scene.truth_camera import SimulatedCamera
-from tcm_companion.sitl.mock import run_sitl_virtual
+from tcm_companion.sitl.mock_flight import run_sitl_virtual
 
 
 class LossyCamera(FrameSource):

@@ -213,7 +213,8 @@ def measure_flight_log(frames_dir: Path, n: int = 100) -> dict[str, dict[str, fl
     (GB/h at 25 Hz)."""
     import numpy as np
 
-    from ..flightlog.writer import FlightLogWriter, LoggingConfig
+    from ..flightlog.settings import LoggingConfig
+    from ..flightlog.writer import FlightLogWriter
 
     images: list[np.ndarray] = []
     for path in sorted(frames_dir.glob("*.png"))[:n]:

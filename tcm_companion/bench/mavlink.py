@@ -31,7 +31,7 @@ import numpy as np
 from ..io.transports import Transport, memory_pair, open_transport
 from ..mavlink import tcm_dialect as dialect
 from ..mavlink.codec import MavlinkCodec
-from ..service.companion import latency_percentile_ms
+from ..service.health import latency_percentile_ms
 
 KINDS = ("pty", "udp", "memory")
 PTY_BAUD = 921600

@@ -19,6 +19,7 @@ import numpy as np
 from ..config import AppConfig
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult, Pipeline, PipelineConfig
+from ..io.detector_model import read_detector_model
 from ..replay.scenario import with_method
 
 STAGES = ("telemetry", "detect", "flow", "track", "classify", "bsm", "total")
@@ -32,8 +33,10 @@ class _CpuTimedPipeline(Pipeline):
     reported beside them (the ``cpu`` column): what a frame costs, whatever the load.
     """
 
-    def __init__(self, camera: CameraModel, config: PipelineConfig) -> None:
-        super().__init__(camera, config)
+    def __init__(
+        self, camera: CameraModel, config: PipelineConfig, detector_model: bytes | None
+    ) -> None:
+        super().__init__(camera, config, detector_model=detector_model)
         self.cpu_ms: list[float] = []
 
     def step(self, frame: np.ndarray, frame_time_us: int) -> FrameResult:
@@ -43,9 +46,11 @@ class _CpuTimedPipeline(Pipeline):
         return result
 
 
-def _frames(
+def rendered_frames(
     resolution: tuple[int, int], n_frames: int
 ) -> tuple[object, list[tuple[int, int, np.ndarray]]]:
+    """The simulated T90 flight at ``resolution`` (width, height px) and its first
+    ``n_frames`` + 30 rendered frames ``(index, t_us, BGR image)``, for timing."""
     from ..sim import make_scenario
 
     sim = make_scenario("T90", duration_s=(n_frames + 30) / 25.0, seed=0)
@@ -55,7 +60,7 @@ def _frames(
     return sim, list(sim.iter_frames())
 
 
-def _time_method(
+def time_stages(
     config: AppConfig,
     sim: object,
     frames: list[tuple[int, int, np.ndarray]],
@@ -81,7 +86,11 @@ def _time_method(
                     time.sleep(gap_s)
                 yield f
 
-    pipe = _CpuTimedPipeline(sim.camera, config.pipeline)  # type: ignore[attr-defined]
+    pipe = _CpuTimedPipeline(
+        sim.camera,  # type: ignore[attr-defined]
+        config.pipeline,
+        read_detector_model(config.pipeline.detection),
+    )
     rows: dict[str, list[float]] = {s: [] for s in STAGES}
     for k, result in enumerate(run_replay(_Frozen(), config, pipe)):
         if k < 30:  # warm-up: caches, first tracks, first full interval
@@ -109,15 +118,15 @@ def run_bench(
         "resolution  method  " + "  ".join(f"{s:>13}" for s in (*STAGES, "cpu")),
     ]
     for res in resolutions:
-        sim, frames = _frames(res, n_frames)
+        sim, frames = rendered_frames(res, n_frames)
         # One untimed pass first: the first run in a process pays one-off costs (heap
         # growth, OpenCV and numpy internals) that would otherwise land on one method.
-        _time_method(config, sim, frames[:60])
+        time_stages(config, sim, frames[:60])
         medians = {}
         cpu = {}
         for method in ("tcm", "ecm", "fused", "bsm"):
             cfg = with_method(config, method)
-            t = _time_method(cfg, sim, frames)
+            t = time_stages(cfg, sim, frames)
             medians[method] = float(np.median(t["total"]))
             cpu[method] = float(np.median(t["cpu"]))
             cells = [

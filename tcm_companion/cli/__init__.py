@@ -1,11 +1,14 @@
 """Command line: ``tcm-companion <command>`` (:func:`main`, the console script).
 
 One module per group of commands, each with ``add_parsers(sub)`` and its ``cmd_*``
-functions: :mod:`.service` (``run``, ``sitl``, ``config check``), :mod:`.replay`,
+functions: :mod:`.run`, :mod:`.sitl`, :mod:`.config_check` (``config check``), :mod:`.replay`,
 :mod:`.evaluate` (``eval``, ``demo``), :mod:`.bench`, :mod:`.logs` (``export``,
 ``import``, ``plot``) and :mod:`.sim` (``sim export``, ``sim list``, ``mock-autopilot``);
 :mod:`.common` holds what they share, above all the one configuration loader
-(:func:`~.common.add_config_arguments`, :func:`~.common.config_from_args`).
+(:func:`~.common.add_config_arguments`, :func:`~.common.config_from_args`). ``run`` and
+``sitl`` share the live status line (:mod:`.status_line`), their signal handling
+(:mod:`.interrupts`, :mod:`.event_loop`) and the checks of what they read and write
+(:mod:`.run_outputs`).
 
 Building the parser imports the standard library and light constants only
 (``tcm-companion --help`` in well under half a second; ``tests/test_cli.py`` checks that
@@ -21,7 +24,7 @@ import sys
 from typing import Any
 
 from .. import __version__
-from . import bench, evaluate, logs, replay, service, sim
+from . import bench, config_check, evaluate, logs, replay, run, sim, sitl
 from .common import config_from_args
 from .interrupts import EXIT_SIGINT, EXIT_SIGTERM, Terminated, sigterm_raises
 
@@ -84,7 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="COMMAND",
         help="one of the commands above; tcm-companion COMMAND --help shows its options",
     )
-    service.add_parsers(sub)  # run, sitl, config
+    run.add_parsers(sub)
+    sitl.add_parsers(sub)
+    config_check.add_parsers(sub)  # config check
     replay.add_parsers(sub)
     evaluate.add_parsers(sub)  # eval, demo
     bench.add_parsers(sub)

@@ -580,35 +580,16 @@ def translation_from_positions(
     sig = cfg.position_sigma_m if position_sigma_m is None else position_sigma_m
     p0 = np.asarray(pos0_ned_m, np.float64)
     p1 = np.asarray(pos1_ned_m, np.float64)
-    return _from_vector(p1 - p0, math.sqrt(2.0) * sig, "autopilot", cfg.max_sigma_rad)
+    return translation_from_vector(p1 - p0, math.sqrt(2.0) * sig, "autopilot", cfg.max_sigma_rad)
 
 
-def translation_from_velocities(
-    t_us: np.ndarray,
-    vel_ned_mps: FloatArray,
-    config: EgomotionConfig | None = None,
-    velocity_sigma_mps: float = 0.1,
-) -> TranslationEstimate:
-    """Translation from velocity samples integrated over time (trapezoid rule).
-
-    ``t_us``: (M,) sample times in microseconds (increasing), ``vel_ned_mps``: (M, 3). The
-    integral spans the first to the last sample. ``velocity_sigma_mps`` is the white noise
-    of one sample; the noise of the integral assumes independent samples.
-    """
-    cfg = config or EgomotionConfig()
-    t = np.asarray(t_us, np.float64) * 1e-6
-    v = np.asarray(vel_ned_mps, np.float64).reshape(-1, 3)
-    if len(t) < 2 or not np.all(np.isfinite(v)) or not np.all(np.diff(t) > 0):
-        return TranslationEstimate.invalid("autopilot")
-    dt = np.diff(t)
-    T = np.sum(0.5 * (v[1:] + v[:-1]) * dt[:, None], axis=0)
-    noise = velocity_sigma_mps * math.sqrt(float(np.sum(dt * dt)))
-    return _from_vector(T, noise, "autopilot", cfg.max_sigma_rad)
-
-
-def _from_vector(
+def translation_from_vector(
     T: FloatArray, noise_m: float, source: str, max_sigma_rad: float
 ) -> TranslationEstimate:
+    """The estimate of a measured translation vector ``T`` (NED, metres) whose noise is
+    ``noise_m`` (m, the σ of the measurement along each axis): its direction, valid when
+    the baseline is at least three times the noise and the direction's σ (rad, across
+    it) is within ``max_sigma_rad``. ``source`` names where ``T`` came from."""
     mag = vector_norm(T)
     if not math.isfinite(mag):
         return TranslationEstimate.invalid(source)

@@ -161,7 +161,10 @@ class Pipeline:
         timer: Callable[[], float] = time.perf_counter,
         *,
         telemetry: TelemetryBuffer | None = None,
+        detector_model: bytes | None = None,
     ) -> None:
+        """``detector_model``: the bytes of the model file the ``onnx`` detection backend
+        runs (the caller reads ``[detection] onnx_model``; None for the other backends)."""
         self.camera = camera
         self.config = config
         self._timer = timer
@@ -178,7 +181,7 @@ class Pipeline:
         flow_cfg = config.flow
         if flow_cfg.max_history < depth:
             flow_cfg = replace(flow_cfg, max_history=depth)
-        self.detector: DetectorBackend = make_detector(camera, config.detection)
+        self.detector: DetectorBackend = make_detector(camera, config.detection, detector_model)
         self.tracker = Tracker(tracking)
         self.flow = FlowTracker(camera, flow_cfg)
         self._frames: deque[_FrameRecord] = deque(maxlen=depth)

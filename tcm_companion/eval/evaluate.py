@@ -31,6 +31,7 @@ from ..config import AppConfig
 from ..core.classify import METHODS, ClassifierConfig, Method, fused_score
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
+from ..io.detector_model import read_detector_model
 from ..io.scenario_extras import Detection
 from ..io.truth import Truth, match_truth
 from ..replay.scenario import DetectionRow, ScenarioLike, run_replay, with_method
@@ -233,7 +234,9 @@ def evaluate_scenario(
     if truth is None:
         raise ValueError(f"{scenario.name}: no truth.csv, cannot evaluate")
     cfg = with_method(config, "tcm", bsm=with_bsm)
-    pipe = Pipeline(scenario.camera, cfg.pipeline)
+    pipe = Pipeline(
+        scenario.camera, cfg.pipeline, detector_model=read_detector_model(cfg.pipeline.detection)
+    )
     detections: list[DetectionRow] | None = None
     if cfg.pipeline.detection.backend == "boxes":
         detections = scenario_detections(scenario)

@@ -1,8 +1,11 @@
 """The flight log: MCAP files of every frame, MAVLink byte, result and health record.
 
-- :mod:`.writer` — :class:`~.writer.LoggingConfig` (``[logging]``), the
-  :class:`~.writer.FlightLogWriter` (its own thread, bounded queue, rotation, disk floor)
-  and its :class:`~.writer.FlightLogStats`.
+- :mod:`.writer` — the :class:`~.writer.FlightLogWriter` (its own thread, bounded queue,
+  rotation, disk floor), with one module per job beside it: :mod:`.settings`
+  (:class:`~.settings.LoggingConfig`, ``[logging]``), :mod:`.stats` (its counts,
+  :class:`~.stats.FlightLogStats`, and state), :mod:`.encoding` (items as MCAP messages),
+  :mod:`.part` (one MCAP file of the log) and :mod:`.disk` (free space, flushing a part
+  to the OS).
 - :mod:`.handle` — :class:`~.handle.FlightLog`, what the daemon's plumbing writes through
   (live or deterministic).
 - :mod:`.reader` — reading logs back (also after a crash).

@@ -13,7 +13,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .writer import FlightLogStats, FlightLogWriter
+from .stats import FlightLogStats
+from .writer import FlightLogWriter
 
 
 class FlightLog:

@@ -9,7 +9,7 @@ wait. ONE writer thread does everything else: JPEG/PNG encoding, JSON and protob
 serialisation, MCAP framing, compression and file IO. It is woken by each frame, by a
 half-full queue and by its own timers, not by every item: the MAVLink bytes and results
 between two frames are written together (a wake-up per item cost the daemon's loop a
-futex call and a GIL hand-over each; docs/decisions.md §8). Its flush timer still runs,
+futex call and a GIL hand-over each; docs/decisions.md §8.3). Its flush timer still runs,
 so the crash-safety bound below holds without frames too.
 
 *Ownership.* ``log_frame`` keeps a reference to the image array, it does not copy it: the
@@ -57,8 +57,14 @@ that never got a message out, and a part start that failed, leave no file.
 *Events.* ``on_event(severity, text)`` is called from the writer thread: it must be
 thread-safe and quick (e.g. ``loop.call_soon_threadsafe``); its exceptions are swallowed.
 
-*Counts.* Every call is counted once, in one :class:`FlightLogStats` the writer keeps
-under its lock; :attr:`FlightLogWriter.stats` is a copy of it.
+*Counts.* Every call is counted once, in one :class:`~.stats.FlightLogStats` the writer
+keeps under its lock; :attr:`FlightLogWriter.stats` is a copy of it.
+
+The writer's parts, one job each: :mod:`.settings` (``[logging]``, :class:`LoggingConfig`),
+:mod:`.stats` (the counts and state), :mod:`.encoding` (JPEG/PNG, protobuf and JSON
+payloads, off the hot path), :mod:`.part` (one MCAP file: start, channels, flush,
+finish) and :mod:`.disk` (the free-space floor, flushing to the OS); this module is the
+thread, the queue, and the parts' naming, rotation and faults.
 
 Topics
 ------
@@ -78,34 +84,24 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import json
 import logging
 import math
 import os
 import queue
-import shutil
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, Literal
 
-import cv2
 import numpy as np
-from foxglove_schemas_protobuf.CircleAnnotation_pb2 import CircleAnnotation
-from foxglove_schemas_protobuf.Color_pb2 import Color
-from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
-from foxglove_schemas_protobuf.Point2_pb2 import Point2
-from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
-from google.protobuf.descriptor_pb2 import FileDescriptorSet
-from google.protobuf.timestamp_pb2 import Timestamp
-from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
-from .. import __version__
 from . import topics
+from .disk import MB, FreeSpace
+from .encoding import encode_item, metadata_value
+from .part import LogPart
 from .reader import (
     FLIGHT_ID_RE,
     METADATA_NAME,
@@ -118,6 +114,19 @@ from .reader import (
     read_log,
     read_metadata,
 )
+from .settings import LoggingConfig
+from .stats import (
+    KIND_ANNOTATIONS,
+    KIND_FRAME,
+    KIND_JSON,
+    KIND_MAVLINK,
+    KIND_NAMES,
+    STATE_CODES,
+    FlightLogStats,
+    LogState,
+    Outcome,
+    lost_outcome,
+)
 from .topics import ANNOTATIONS_SCHEMA, IMAGE_SCHEMA
 
 __all__ = [
@@ -126,11 +135,8 @@ __all__ = [
     "LOG_FORMAT",
     "MAVLINK_TOPICS",
     "METADATA_NAME",
-    "FlightLogStats",
     "FlightLogWriter",
     "LogRecord",
-    "LogState",
-    "LoggingConfig",
     "decode_image",
     "decode_json",
     "log_files",
@@ -142,243 +148,6 @@ log = logging.getLogger(__name__)
 
 LOG_FORMAT = "tcm-flightlog/1"
 MAVLINK_TOPICS = topics.MAVLINK  # log_mavlink's direction -> topic
-
-# MAVLink enum TCM_LOG_STATE (tcm_companion/mavlink/tcm.xml)
-TCM_LOG_STATE_OFF = 0
-TCM_LOG_STATE_RECORDING = 1
-TCM_LOG_STATE_FAULT = 2
-
-LogState = Literal["off", "recording", "frames paused (disk)", "fault"]
-_STATE_CODES: dict[str, int] = {
-    "off": TCM_LOG_STATE_OFF,
-    "recording": TCM_LOG_STATE_RECORDING,
-    "frames paused (disk)": TCM_LOG_STATE_RECORDING,
-    "fault": TCM_LOG_STATE_FAULT,
-}
-
-_MB = 1_000_000
-
-
-# ---------------------------------------------------------------------------------------
-# Configuration
-
-
-@dataclass(frozen=True)
-class LoggingConfig:
-    """Table ``[logging]`` of config.toml."""
-
-    enabled: bool = True
-    directory: str = ""  # "": resolved by the caller ($LOGS_DIRECTORY or a default)
-    image_format: Literal["jpeg", "png"] = "jpeg"  # png = lossless (exact replay)
-    jpeg_quality: int = 65  # ~9.7 kB per 360x220 frame: under 1 GB per hour at 25 Hz
-    queue_items: int = 256  # bounded queue between the daemon and the writer thread
-    chunk_size_bytes: int = 262_144
-    flush_interval_s: float = 0.5  # at most this much is lost on a kill -9
-    rotate_size_mb: float = 1024.0
-    rotate_interval_s: float = 3600.0
-    min_free_mb: float = 500.0  # below this free space, frames stop being logged
-
-    def __post_init__(self) -> None:
-        def bad(name: str, want: str) -> ValueError:
-            return ValueError(f"{name} must be {want}, got {getattr(self, name)!r}")
-
-        if not isinstance(self.enabled, bool):
-            raise bad("enabled", "true or false")
-        if not isinstance(self.directory, str):
-            raise bad("directory", "a string")
-        if self.image_format not in ("jpeg", "png"):
-            raise bad("image_format", '"jpeg" or "png"')
-        if not _is_int(self.jpeg_quality) or not 1 <= self.jpeg_quality <= 100:
-            raise bad("jpeg_quality", "an integer in 1..100")
-        if not _is_int(self.queue_items) or not 1 <= self.queue_items <= 1_000_000:
-            raise bad("queue_items", "an integer in 1..1000000")
-        if not _is_int(self.chunk_size_bytes) or not 1024 <= self.chunk_size_bytes <= 1 << 30:
-            raise bad("chunk_size_bytes", "an integer in 1024..1073741824")
-        if not _is_num(self.flush_interval_s) or not 0 < self.flush_interval_s <= 60:
-            raise bad("flush_interval_s", "in (0, 60] s")
-        if not _is_num(self.rotate_size_mb) or not self.rotate_size_mb > 0:
-            raise bad("rotate_size_mb", "> 0")
-        if not _is_num(self.rotate_interval_s) or not self.rotate_interval_s > 0:
-            raise bad("rotate_interval_s", "> 0 s")
-        if not _is_num(self.min_free_mb) or not self.min_free_mb >= 0:
-            raise bad("min_free_mb", ">= 0")
-
-
-def _is_int(x: object) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _is_num(x: object) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-
-
-# ---------------------------------------------------------------------------------------
-# Statistics
-
-# What becomes of a logged item (the suffix of a FlightLogStats counter).
-Outcome = Literal["queued", "logged", "dropped_queue", "dropped_disk", "dropped_error"]
-_FRAME, _ANNOT, _MAV, _JSON = 0, 1, 2, 3  # the kinds of queued item
-
-
-@dataclass
-class FlightLogStats:
-    """The writer's counts: the writer keeps one under its lock and counts into it;
-    :attr:`FlightLogWriter.stats` returns a copy (a snapshot) with the live values
-    (bytes, files, state, queue depth) filled in.
-
-    Once stopped, every ``log_frame`` call is exactly one of ``frames_logged``,
-    ``frames_dropped_queue`` (queue full, or not recording, or still queued when ``stop``
-    timed out), ``frames_dropped_disk`` (free-space floor) and ``frames_dropped_error``
-    (log in fault, or the image could not be encoded); ``frames_dropped_error`` is 0 unless
-    something failed. ``messages_*`` count the other calls (annotations, MAVLink, JSON) the
-    same way. ``write_errors`` counts every failed file operation, retries included.
-    """
-
-    frames_queued: int = 0
-    frames_logged: int = 0
-    frames_dropped_queue: int = 0
-    frames_dropped_disk: int = 0
-    messages_logged: int = 0
-    messages_dropped_queue: int = 0
-    bytes_written: int = 0
-    files: list[Path] = field(default_factory=list)
-    write_errors: int = 0
-    state: LogState = "off"
-    frames_dropped_error: int = 0
-    messages_queued: int = 0
-    messages_dropped_disk: int = 0  # annotations under the free-space floor
-    messages_dropped_error: int = 0
-    encode_errors: int = 0
-    writer_cpu_s: float = 0.0  # CPU time of the writer thread
-    queue_depth: int = 0
-
-    def count(self, kind: int, outcome: Outcome) -> None:
-        """One more frame (``kind`` :data:`_FRAME`) or other message, ``outcome``."""
-        name = f"{'frames' if kind == _FRAME else 'messages'}_{outcome}"
-        setattr(self, name, getattr(self, name) + 1)
-
-    @property
-    def log_state_code(self) -> int:
-        """The state as MAVLink ``TCM_LOG_STATE`` (OFF=0, RECORDING=1, FAULT=2)."""
-        return _STATE_CODES[self.state]
-
-
-# ---------------------------------------------------------------------------------------
-# Encoding helpers (writer thread)
-
-
-def _file_descriptor_set(message_class: Any) -> bytes:
-    """The message's .proto file and its dependencies, as MCAP's protobuf schema data."""
-    fds = FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: Any) -> None:
-        if fd.name in seen:
-            return
-        seen.add(fd.name)
-        for dep in fd.dependencies:
-            add(dep)
-        fd.CopyToProto(fds.file.add())
-
-    add(message_class.DESCRIPTOR.file)
-    return fds.SerializeToString()
-
-
-_PROTO_SCHEMAS: dict[str, bytes] = {}
-
-
-def _proto_schema(name: str) -> bytes:
-    if name not in _PROTO_SCHEMAS:
-        cls = CompressedImage if name == IMAGE_SCHEMA else ImageAnnotations
-        _PROTO_SCHEMAS[name] = _file_descriptor_set(cls)
-    return _PROTO_SCHEMAS[name]
-
-
-def _timestamp(ns: int) -> Timestamp:
-    return Timestamp(seconds=ns // 1_000_000_000, nanos=ns % 1_000_000_000)
-
-
-_RED = (1.0, 0.15, 0.15)
-_GREEN = (0.1, 0.85, 0.2)
-_GREY = (0.6, 0.6, 0.6)
-
-
-def _label_rgb(label: str) -> tuple[float, float, float]:
-    if label.startswith("moving"):
-        return _RED
-    if label.startswith("stationary"):
-        return _GREEN
-    return _GREY
-
-
-def _annotations(ts_ns: int, circles: tuple[tuple[float, float, float, str], ...]) -> bytes:
-    ts = _timestamp(ts_ns)
-    msg = ImageAnnotations()
-    if "timestamp" in ImageAnnotations.DESCRIPTOR.fields_by_name:  # schemas >= 0.4
-        msg.timestamp.CopyFrom(ts)
-    for u, v, r, label in circles:
-        u, v, r, label = float(u), float(v), float(r), str(label)
-        rgb = _label_rgb(label)
-        msg.circles.append(
-            CircleAnnotation(
-                timestamp=ts,
-                position=Point2(x=u, y=v),
-                diameter=2.0 * r,
-                thickness=2.0,
-                fill_color=Color(r=rgb[0], g=rgb[1], b=rgb[2], a=0.0),
-                outline_color=Color(r=rgb[0], g=rgb[1], b=rgb[2], a=1.0),
-            )
-        )
-        msg.texts.append(
-            TextAnnotation(
-                timestamp=ts,
-                position=Point2(x=u - r, y=max(v - r - 3.0, 10.0)),
-                text=label,
-                font_size=11.0,
-                text_color=Color(r=rgb[0], g=rgb[1], b=rgb[2], a=1.0),
-                background_color=Color(r=0.0, g=0.0, b=0.0, a=0.5),
-            )
-        )
-    return msg.SerializeToString()
-
-
-def _jsonable(x: Any) -> Any:
-    """``x`` with numpy scalars/arrays made plain and NaN/±inf made null (strict JSON)."""
-    if x is None or isinstance(x, str | bool | int):
-        return x
-    if isinstance(x, float):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, Mapping):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple | set | frozenset):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        return _jsonable(x.item())
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, bytes | bytearray):
-        return x.hex()
-    return str(x)
-
-
-def _metadata_value(v: Any) -> str:
-    return v if isinstance(v, str) else json.dumps(_jsonable(v), sort_keys=True)
-
-
-def _disk_free(path: Path) -> int:
-    return shutil.disk_usage(path).free
-
-
-def _flush_writer(writer: Writer, fh: IO[bytes]) -> None:
-    """End the open chunk and push everything to the OS (mcap's ``Writer.flush()``; the
-    same steps through its private methods on versions before it existed)."""
-    flush = getattr(writer, "flush", None)
-    if callable(flush):
-        flush()
-    else:  # pragma: no cover - old mcap
-        getattr(writer, "_Writer__finalize_chunk")()  # noqa: B009 (name-mangled)
-        getattr(writer, "_Writer__flush")()  # noqa: B009
-    fh.flush()
 
 
 # ---------------------------------------------------------------------------------------
@@ -427,12 +196,11 @@ class FlightLogWriter:
         if wall_minus_mono_ns is None:
             wall_minus_mono_ns = time.time_ns() - time.monotonic_ns()
         self.wall_minus_mono_ns = int(wall_minus_mono_ns)
-        self._free_bytes = free_bytes if free_bytes is not None else _disk_free
+        self._space = FreeSpace(self.directory, config.min_free_mb, free_bytes)
         self._on_event = on_event
         self._free_check_interval_s = max(float(free_check_interval_s), 1e-3)
         self._retry_interval_s = max(float(retry_interval_s), 1e-3)
-        self._rotate_bytes = int(config.rotate_size_mb * _MB)
-        self._min_free_bytes = config.min_free_mb * _MB
+        self._rotate_bytes = int(config.rotate_size_mb * MB)
 
         # A SimpleQueue (put and get in C, no Python-level Condition), bounded by the
         # producers themselves: they check the depth and put under ``_lock``, which they
@@ -464,18 +232,12 @@ class FlightLogWriter:
         self._metadata: dict[str, str] = {}
         self._session = ""
         self._counter = 0
-        self._fh: IO[bytes] | None = None
-        self._mcap: Writer | None = None
-        self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
-        self._sequence: dict[int, int] = {}
+        self._part: LogPart | None = None  # the open part
         self._file_opened_at = 0.0
-        self._dirty = False
         self._fault = False
         self._fault_disk_full = False  # the fault is a full disk (ENOSPC, EDQUOT)
         self._fault_reported = False
         self._encode_error_reported = False
-        self._disk_low = False
         # Counted as logged but not yet pushed to the OS (the open chunk): a failed write
         # loses them, and they are counted again as dropped (see _enter_fault).
         self._pending = [0, 0]  # frames, other messages
@@ -496,7 +258,7 @@ class FlightLogWriter:
         if self._started:
             raise RuntimeError("FlightLogWriter.start() called twice")
         self._started = True
-        meta = {str(k): _metadata_value(v) for k, v in metadata.items()}
+        meta = {str(k): metadata_value(v) for k, v in metadata.items()}
         meta.update(
             flight_id=self.flight_id,
             log_format=LOG_FORMAT,
@@ -542,7 +304,7 @@ class FlightLogWriter:
 
     def log_frame(self, camera_id: int, t_capture_us: int, image: np.ndarray) -> bool:
         """Queue a camera frame (BGR or grey uint8; a reference is kept, not a copy)."""
-        return self._put((_FRAME, camera_id, t_capture_us, image))
+        return self._put((KIND_FRAME, camera_id, t_capture_us, image))
 
     def log_annotations(
         self,
@@ -553,9 +315,14 @@ class FlightLogWriter:
         """Queue the objects of a frame: ``(u px, v px, radius px, label)`` each; the colour
         follows the label's prefix (moving red, stationary green, else grey)."""
         try:
-            item = (_ANNOT, camera_id, t_capture_us, tuple(circles))  # a few tuples: cheap
+            item = (
+                KIND_ANNOTATIONS,
+                camera_id,
+                t_capture_us,
+                tuple(circles),
+            )  # a few tuples: cheap
         except Exception:
-            item = (_ANNOT, camera_id, t_capture_us, ())
+            item = (KIND_ANNOTATIONS, camera_id, t_capture_us, ())
         return self._put(item)
 
     def log_mavlink(self, direction: Literal["in", "out"], t_us: int, data: bytes) -> bool:
@@ -566,11 +333,11 @@ class FlightLogWriter:
                 data = bytes(data)
             except Exception:
                 data = b""
-        return self._put((_MAV, direction, t_us, data))
+        return self._put((KIND_MAVLINK, direction, t_us, data))
 
     def log_json(self, topic: str, t_us: int, doc: Mapping[str, Any]) -> bool:
         """Queue a JSON document on ``topic`` (e.g. ``/tcm/result``)."""
-        return self._put((_JSON, topic, t_us, doc))
+        return self._put((KIND_JSON, topic, t_us, doc))
 
     def _put(self, item: _Item) -> bool:
         c = self._counts
@@ -583,7 +350,7 @@ class FlightLogWriter:
                     if self._accepting and depth < self._maxsize:
                         q.put(item)
                         ok = True
-                        if item[0] == _FRAME or depth + 1 >= self._wake_depth:
+                        if item[0] == KIND_FRAME or depth + 1 >= self._wake_depth:
                             self._wake.set()
                     else:
                         # Deterministic: wait for room (a simulation's time does not pass
@@ -592,7 +359,7 @@ class FlightLogWriter:
                 except Exception:  # anything: never raise into the daemon
                     ok = wait = False
                 if not wait:
-                    if item[0] == _FRAME:
+                    if item[0] == KIND_FRAME:
                         if ok:
                             c.frames_queued += 1
                         else:
@@ -612,14 +379,14 @@ class FlightLogWriter:
             return "off"
         if self._fault:
             return "fault"
-        if self._disk_low:
+        if self._space.low:
             return "frames paused (disk)"
         return "recording"
 
     @property
     def log_state_code(self) -> int:
         """The state as MAVLink ``TCM_LOG_STATE`` (OFF=0, RECORDING=1, FAULT=2)."""
-        return _STATE_CODES[self.state]
+        return STATE_CODES[self.state]
 
     @property
     def alive(self) -> bool:
@@ -724,14 +491,16 @@ class FlightLogWriter:
         if self.deterministic:
             self._record_time_housekeeping(int(item[2]))
         kind = item[0]
-        if kind in (_FRAME, _ANNOT) and self._disk_low:
+        if kind in (KIND_FRAME, KIND_ANNOTATIONS) and self._space.low:
             self._count(kind, "dropped_disk")
             return
-        if self._mcap is None:
+        if self._part is None:
             self._count(kind, "dropped_disk" if self._fault_disk_full else "dropped_error")
             return
         try:
-            topic, channel_kind, t_us, payload = self._encode(item)
+            topic, channel_kind, t_us, payload = encode_item(
+                item, self.config, self.wall_minus_mono_ns
+            )
             publish_ns = int(t_us) * 1000
             log_ns = publish_ns + self.wall_minus_mono_ns
             if not (0 <= publish_ns < 1 << 64 and 0 <= log_ns < 1 << 64):
@@ -742,23 +511,22 @@ class FlightLogWriter:
                 self._counts.encode_errors += 1
             if not self._encode_error_reported:
                 self._encode_error_reported = True
-                self._event("warning", f"log: cannot encode {_KIND_NAMES[kind]}: {e}")
+                self._event("warning", f"log: cannot encode {KIND_NAMES[kind]}: {e}")
             return
         counted = False
         try:
-            self._write(topic, channel_kind, log_ns, publish_ns, payload)
+            self._part.write(topic, channel_kind, log_ns, publish_ns, payload)
             with self._lock:
                 self._counts.count(kind, "logged")
-            self._pending[kind != _FRAME] += 1
+            self._pending[kind != KIND_FRAME] += 1
             counted = True  # from here on a failure counts it again, as pending
-            assert self._fh is not None
-            pos = self._fh.tell()
+            pos = self._part.fh.tell()
             if pos != self._written_pos:  # mcap ended a chunk: push it to the OS now, so
-                self._fh.flush()  # that what is counted as logged is what the file holds
+                self._part.fh.flush()  # that what is counted as logged is what the file holds
                 self._written(pos)
         except Exception as e:
             if not counted:  # the write itself failed
-                self._count(kind, _lost_outcome(e))
+                self._count(kind, lost_outcome(e))
             self._enter_fault(e, time.monotonic())
             return
         if pos >= self._rotate_bytes:
@@ -771,77 +539,6 @@ class FlightLogWriter:
         if self._pending != [0, 0]:
             self._part_flushed = True
         self._pending = [0, 0]
-
-    def _encode(self, item: _Item) -> tuple[str, str, int, bytes]:
-        """(topic, channel kind, t_us, payload) of a queued item."""
-        kind = item[0]
-        if kind == _MAV:
-            _, direction, t_us, data = item
-            return topics.MAVLINK[direction], "mavlink", t_us, data
-        if kind == _JSON:
-            _, topic, t_us, doc = item
-            text = json.dumps(_jsonable(doc), separators=(",", ":"), allow_nan=False)
-            return str(topic), "json", t_us, text.encode()
-        _, camera_id, t_us, obj = item
-        camera_id = int(camera_id)
-        ts_ns = int(t_us) * 1000 + self.wall_minus_mono_ns
-        if kind == _FRAME:
-            msg = CompressedImage(
-                timestamp=_timestamp(ts_ns),
-                frame_id=topics.camera_frame_id(camera_id),
-                data=self._encode_image(obj),
-                format=self.config.image_format,
-            )
-            return topics.camera_image(camera_id), IMAGE_SCHEMA, t_us, msg.SerializeToString()
-        payload = _annotations(ts_ns, tuple(obj))
-        return topics.camera_annotations(camera_id), ANNOTATIONS_SCHEMA, t_us, payload
-
-    def _encode_image(self, image: np.ndarray) -> bytes:
-        """JPEG (``jpeg_quality``) or PNG bytes of a BGR/grey uint8 image."""
-        img = np.ascontiguousarray(image)
-        if img.dtype != np.uint8:
-            raise ValueError(f"image dtype {img.dtype}, expected uint8")
-        if self.config.image_format == "jpeg":
-            ok, buf = cv2.imencode(
-                ".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.config.jpeg_quality]
-            )
-        else:
-            ok, buf = cv2.imencode(".png", img)
-        if not ok:
-            raise ValueError(f"cv2.imencode failed for a {img.shape} image")
-        return buf.tobytes()
-
-    def _write(self, topic: str, channel_kind: str, log_ns: int, pub_ns: int, data: bytes) -> None:
-        assert self._mcap is not None
-        channel_id = self._channels.get(topic)
-        if channel_id is None:
-            channel_id = self._register(topic, channel_kind)
-        seq = self._sequence.get(channel_id, 0)
-        self._sequence[channel_id] = (seq + 1) & 0xFFFFFFFF
-        self._mcap.add_message(
-            channel_id=channel_id, log_time=log_ns, data=data, publish_time=pub_ns, sequence=seq
-        )
-        self._dirty = True
-
-    def _register(self, topic: str, channel_kind: str) -> int:
-        assert self._mcap is not None
-        if channel_kind == "mavlink":
-            schema_id, encoding = 0, "mavlink"
-        elif channel_kind == "json":
-            schema = json.dumps({"title": topic, "type": "object"}).encode()
-            schema_id = self._mcap.register_schema(name=topic, encoding="jsonschema", data=schema)
-            encoding = "json"
-        else:
-            if channel_kind not in self._schemas:
-                self._schemas[channel_kind] = self._mcap.register_schema(
-                    name=channel_kind, encoding="protobuf", data=_proto_schema(channel_kind)
-                )
-            schema_id, encoding = self._schemas[channel_kind], "protobuf"
-        channel_id = self._mcap.register_channel(
-            topic=topic, message_encoding=encoding, schema_id=schema_id
-        )
-        self._channels[topic] = channel_id
-        return channel_id
 
     def _record_time_housekeeping(self, t_us: int) -> None:
         """Deterministic mode: flush and rotate by the records' time (every item's
@@ -864,7 +561,7 @@ class FlightLogWriter:
             self._check_free(now)
             self._check_file_linked(now)
         if (
-            self._mcap is not None
+            self._part is not None
             and not self.deterministic
             and now - self._file_opened_at >= self.config.rotate_interval_s
         ):
@@ -873,14 +570,9 @@ class FlightLogWriter:
             self._retry(now)
 
     def _check_free(self, now: float) -> None:
-        try:
-            free = int(self._free_bytes(self.directory))
-        except Exception:
-            return  # unknown (e.g. the directory is gone): the write path will tell
-        low = free < self._min_free_bytes
-        if low == self._disk_low:
+        if not self._space.checked():
             return
-        self._disk_low = low
+        low = self._space.low
         floor = f"{self.config.min_free_mb:g} MB"
         if low:
             self._event("warning", f"log: disk below {floor}, frames not logged")
@@ -888,21 +580,19 @@ class FlightLogWriter:
             self._event("info", f"log: disk above {floor}, frames logged again")
 
     def _check_file_linked(self, now: float) -> None:
-        if self._fh is None:
+        if self._part is None:
             return
         try:
-            if os.fstat(self._fh.fileno()).st_nlink == 0:
+            if os.fstat(self._part.fh.fileno()).st_nlink == 0:
                 raise FileNotFoundError(errno.ENOENT, "the log file was deleted")
         except Exception as e:
             self._enter_fault(e, now)
 
     def _flush(self, now: float) -> None:
-        if self._mcap is None or self._fh is None or not self._dirty:
+        if self._part is None or not self._part.dirty:
             return
         try:
-            _flush_writer(self._mcap, self._fh)
-            self._dirty = False
-            self._bytes_current = self._fh.tell()
+            self._bytes_current = self._part.flush()
             self._written(self._bytes_current)
         except Exception as e:
             self._enter_fault(e, now)
@@ -917,7 +607,7 @@ class FlightLogWriter:
             self._enter_fault(e, now)
 
     def _retry(self, now: float) -> None:
-        if self._fault_disk_full and not self._room_for_a_part():
+        if self._fault_disk_full and not self._space.room_for_a_part(self.config.chunk_size_bytes):
             self._next_retry = now + self._retry_interval_s
             return
         try:
@@ -933,14 +623,6 @@ class FlightLogWriter:
         self._fault_reported = False
         self._event("info", f"log: recording again ({self._counts.files[-1].name})")
 
-    def _room_for_a_part(self) -> bool:
-        """After a full disk: free space for a part's start and a chunk (unknown: try)."""
-        try:
-            free = int(self._free_bytes(self.directory))
-        except Exception:
-            return True
-        return free >= self.config.chunk_size_bytes + 65_536
-
     def _open_file(self) -> None:
         """Open the next part: header, metadata record, flushed; raises on failure."""
         self.directory.mkdir(parents=True, exist_ok=True)
@@ -955,14 +637,8 @@ class FlightLogWriter:
         else:  # pragma: no cover
             raise FileExistsError(errno.EEXIST, "no free log file name", str(self.directory))
         try:
-            writer = Writer(
-                fh, chunk_size=self.config.chunk_size_bytes, compression=CompressionType.ZSTD
-            )
-            writer.start(profile="", library=f"tcm-companion/{__version__} {LIBRARY_IDENTIFIER}")
-            writer.add_metadata(
-                METADATA_NAME, {**self._metadata, "log_part": str(len(self._counts.files))}
-            )
-            fh.flush()
+            part = LogPart(fh, self.config.chunk_size_bytes)
+            part.start({**self._metadata, "log_part": str(len(self._counts.files))})
         except BaseException:
             with contextlib.suppress(Exception):
                 fh.close()
@@ -970,9 +646,7 @@ class FlightLogWriter:
                 path.unlink()  # ours (created here): no empty or partial part is left
             raise
         self._counter += 1
-        self._fh, self._mcap = fh, writer
-        self._channels, self._schemas, self._sequence = {}, {}, {}
-        self._dirty = False
+        self._part = part
         self._pending = [0, 0]
         self._written_pos = fh.tell()
         self._part_flushed = False
@@ -987,21 +661,15 @@ class FlightLogWriter:
 
     def _close_file(self) -> None:
         """Finish the part (summary, footer), fsync and close it."""
-        fh, writer = self._fh, self._mcap
-        if fh is None or writer is None:
+        if self._part is None:
             return
         try:
-            writer.finish()
-            fh.flush()
-            with contextlib.suppress(OSError):
-                os.fsync(fh.fileno())
-            size = fh.tell()
-            fh.close()
+            size = self._part.finish()
         except Exception as e:
             self._enter_fault(e, time.monotonic())
             return
         self._pending = [0, 0]
-        self._fh = self._mcap = None
+        self._part = None
         with self._lock:
             self._bytes_closed += size
             self._bytes_current = 0
@@ -1009,10 +677,10 @@ class FlightLogWriter:
     def _enter_fault(self, exc: BaseException, now: float) -> None:
         # What was counted as logged but had not reached the OS is lost with the part's
         # tail: counted again, as dropped (disk on a full disk, else error).
-        lost = _lost_outcome(exc)
+        lost = lost_outcome(exc)
         frames, messages = self._pending
         self._pending = [0, 0]
-        fh = self._fh
+        fh = self._part.fh if self._part is not None else None
         # A part that never got a message out holds only its start: remove it (a full
         # disk would otherwise leave one such part per retry).
         useless = fh is not None and not self._part_flushed
@@ -1036,7 +704,7 @@ class FlightLogWriter:
         if gone is not None:
             with contextlib.suppress(OSError):
                 gone.unlink()
-        self._fh = self._mcap = None
+        self._part = None
         self._fault = True
         self._fault_disk_full = lost == "dropped_disk"
         self._next_retry = now + self._retry_interval_s
@@ -1053,14 +721,3 @@ class FlightLogWriter:
             self._on_event(severity, text)
         except Exception:
             log.exception("flight log on_event callback failed")
-
-
-def _lost_outcome(exc: BaseException) -> Outcome:
-    """How an item lost to the write error ``exc`` is counted: a full disk (ENOSPC, or
-    a quota: EDQUOT) is ``dropped_disk``, like the free-space floor; anything else
-    ``dropped_error``."""
-    full = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
-    return "dropped_disk" if full else "dropped_error"
-
-
-_KIND_NAMES = {_FRAME: "frame", _ANNOT: "annotations", _MAV: "MAVLink", _JSON: "JSON"}

@@ -41,7 +41,8 @@ import tomli_w
 from ..core.camera import CameraModel, CameraModelError, camera_from_dict
 from ..flightlog import reader, topics
 from ..flightlog.docs import annotation_circles, result_doc
-from ..flightlog.writer import FlightLogWriter, LoggingConfig
+from ..flightlog.settings import LoggingConfig
+from ..flightlog.writer import FlightLogWriter
 from ..io.scenario import FORMAT, FRAMES_HEADER, ScenarioError, load_scenario
 from ..io.tlog import TlogError, TlogWriter, read_tlog
 
@@ -399,6 +400,7 @@ def scenario_to_log(
         from ..config import AppConfig, config_to_toml
         from ..core.pipeline import Pipeline
         from ..core.telemetry import TelemetryBuffer
+        from ..io.detector_model import read_detector_model
         from ..mavlink.params import ParamTable, config_with_params, params_from_config
         from ..replay.scenario import telemetry_wait_us
 
@@ -408,7 +410,12 @@ def scenario_to_log(
         pipe_cfg = config_with_params(cfg.pipeline, params)
         recorded = {"config": config_to_toml(cfg), "params": json.dumps(params, sort_keys=True)}
         buffer = TelemetryBuffer()
-        pipeline = Pipeline(scenario.camera, pipe_cfg, telemetry=buffer)
+        pipeline = Pipeline(
+            scenario.camera,
+            pipe_cfg,
+            telemetry=buffer,
+            detector_model=read_detector_model(pipe_cfg.detection),
+        )
         threshold = float(pipe_cfg.classifier.tcm_threshold)
         wait_us = telemetry_wait_us(cfg)
         telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)

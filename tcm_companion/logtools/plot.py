@@ -559,7 +559,7 @@ def _plot_egomotion(fig: Figure, data: PlotData, t0: int) -> str:
 
 
 def _percentiles(x: np.ndarray) -> Sequence[tuple[str, float]]:
-    from ..service.companion import latency_percentile_ms
+    from ..service.health import latency_percentile_ms
 
     return [(f"p{p}", latency_percentile_ms(x, p)) for p in (50, 90, 99)]
 

@@ -132,6 +132,20 @@ def config_with_params(config: PipelineConfig, values: Mapping[str, float]) -> P
     )
 
 
+def params_problem(config: PipelineConfig, values: Mapping[str, float]) -> str:
+    """Why the parameter ``values`` cannot be applied to ``config`` together (a seed hue
+    range leaving the grow range: each value passes its own range, the pair does not),
+    for a STATUSTEXT ("" if they can)."""
+    try:
+        config_with_params(config, values)
+    except ValueError as exc:
+        # Without the class prefix: "DetectionConfig.seed_hue_deg ..." -> "seed_hue_deg ...".
+        text = str(exc)
+        head, dot, rest = text.partition(".")
+        return rest if dot and head.endswith("Config") and " " not in head else text
+    return ""
+
+
 #: The configuration key each parameter stands for (:func:`params_from_config`).
 CONFIG_KEYS: dict[str, str] = {
     "TCM_THRESH": "[classifier] tcm_threshold",

@@ -7,13 +7,16 @@ once per ``repeat_us``; the table of conditions is bounded (conditions older tha
 ``repeat_us`` are forgotten first, and at most ``max_conditions`` are kept). A full queue
 drops the text. Both are counted in ``stats``.
 
+:class:`StatustextAssembler`: the receiving side, whole texts from STATUSTEXTs that may
+come in chunks.
+
 :class:`CollisionConditions`: when a track's collision alarm is a new condition, so that
 an alarm is announced once, not once per frame or per TTC value.
 """
 
 from __future__ import annotations
 
-from collections import Counter, deque
+from collections import Counter, OrderedDict, deque
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -33,12 +36,16 @@ class _Text:
 
 def statustext_messages(severity: int, text: str, now_us: int) -> list[Any]:
     """The STATUSTEXT message(s) of one text: one, or MAVLink 2 chunks (same id,
-    increasing ``chunk_seq``, the last one NUL-terminated by the encoder's padding)."""
+    increasing ``chunk_seq``, the last one NUL-terminated by the encoder's padding; a text
+    of a whole number of full chunks ends with an empty chunk, or no receiver could tell
+    that it ended)."""
     data = text.encode("utf-8", "replace")
     if len(data) <= TEXT_BYTES:
         return [d.MAVLink_statustext_message(severity, data, 0, 0)]
     msg_id = (now_us // 1000) & 0xFFFF or 1
     chunks = [data[i : i + TEXT_BYTES] for i in range(0, len(data), TEXT_BYTES)]
+    if len(chunks[-1]) == TEXT_BYTES:
+        chunks.append(b"")
     return [
         d.MAVLink_statustext_message(severity, chunk, msg_id, seq)
         for seq, chunk in enumerate(chunks)
@@ -120,6 +127,41 @@ class StatustextQueue:
         item = self._queue.popleft()
         self.next_us = now_us + self.min_interval_us
         return statustext_messages(item.severity, item.text, now_us)
+
+
+class StatustextAssembler:
+    """Whole texts from received STATUSTEXT messages, sans-IO.
+
+    A text of at most :data:`TEXT_BYTES` bytes comes in one message with ``id`` 0. A
+    longer one comes in chunks sharing one ``id`` (per sender), ``chunk_seq`` 0, 1, ...;
+    every chunk but the last is full (:data:`TEXT_BYTES` bytes), so the first shorter one
+    ends the text. At most ``max_pending`` texts are held incomplete (the oldest is
+    forgotten first, counted in :attr:`dropped`).
+    """
+
+    def __init__(self, max_pending: int = 64) -> None:
+        self.max_pending = max_pending
+        self.dropped = 0  # incomplete texts forgotten to stay within max_pending
+        # (sysid, compid, id) -> (the first chunk's time, the chunks so far), oldest first
+        self._pending: OrderedDict[tuple[int, int, int], tuple[float, list[str]]] = OrderedDict()
+
+    def add(self, msg: Any, t: float) -> tuple[float, str] | None:
+        """Take one STATUSTEXT received at ``t`` (any clock, any unit); return ``(t of its
+        first chunk, the whole text)`` when it completes a text, else None."""
+        text = str(msg.text)
+        chunk_id = int(getattr(msg, "id", 0))
+        if chunk_id == 0:
+            return t, text
+        key = (int(msg.get_srcSystem()), int(msg.get_srcComponent()), chunk_id)
+        first_t, parts = self._pending.pop(key, (t, []))
+        parts.append(text)
+        if len(text.encode("utf-8", "replace")) < TEXT_BYTES:
+            return first_t, "".join(parts)
+        self._pending[key] = (first_t, parts)
+        while len(self._pending) > self.max_pending:
+            self._pending.popitem(last=False)
+            self.dropped += 1
+        return None
 
 
 class CollisionConditions:

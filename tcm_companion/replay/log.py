@@ -55,6 +55,7 @@ from ..config import AppConfig, config_from_dict, drop_deprecated
 from ..core.camera import CameraModel, camera_from_dict
 from ..core.pipeline import FrameResult
 from ..flightlog import topics as log_topics
+from ..io.detector_model import read_detector_model
 from ..mavlink.endpoint import CompanionEndpoint
 from ..service.companion import Companion
 
@@ -232,7 +233,13 @@ def replay_log(
         t_mono_us = rec.publish_time_ns // 1000
         if companion is None:
             companion = Companion(
-                models, config.pipeline, endpoint, t_mono_us, config.daemon, names
+                models,
+                config.pipeline,
+                endpoint,
+                t_mono_us,
+                config.daemon,
+                names,
+                detector_model=read_detector_model(config.pipeline.detection),
             )
         if held and t_mono_us - held[0].result.t_us > _HEALTH_WAIT_US:
             yield from held  # no health record to wait for

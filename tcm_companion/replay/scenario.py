@@ -24,6 +24,7 @@ from ..core.classify import Method
 from ..core.detection import Box, BoxesDetector
 from ..core.pipeline import FrameResult, Pipeline
 from ..core.telemetry import TelemetrySample
+from ..io.detector_model import read_detector_model
 from ..io.scenario_extras import Detection
 
 
@@ -82,7 +83,11 @@ def run_replay(
     ``detections``: the external detector's boxes for the boxes backend (default: the
     scenario's ``detections``, i.e. its ``detections.csv``); ignored by other backends.
     """
-    pipe = pipeline or Pipeline(scenario.camera, config.pipeline)
+    pipe = pipeline or Pipeline(
+        scenario.camera,
+        config.pipeline,
+        detector_model=read_detector_model(config.pipeline.detection),
+    )
     buffer = pipe.telemetry
     telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
     wait = telemetry_wait_us(config)

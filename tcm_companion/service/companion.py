@@ -7,7 +7,10 @@ every entry point takes the time as an argument (µs on the companion's monotoni
 wants to run. It owns one :class:`~tcm_companion.core.pipeline.Pipeline` per camera (all
 reading one shared :class:`~tcm_companion.core.telemetry.TelemetryBuffer`), the
 :class:`~tcm_companion.mavlink.endpoint.CompanionEndpoint`, the per-input health
-(:mod:`.inputs`), one frame slot per camera, and the once-a-second health check.
+(:mod:`.inputs`), one frame slot per camera (:mod:`.slots`), and the once-a-second health
+check. Beside it, one job each: its settings and their rules (:mod:`.daemon_config`), what
+it hands its drivers (:mod:`.outputs`), the pipelines' clock (:mod:`.timesync_clock`), its
+counters and latency figures (:mod:`.health`).
 
 Its drivers only move things in and out, all through the same surface:
 
@@ -72,20 +75,17 @@ Policies that live here:
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
-from collections import Counter, deque
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..core.camera import CameraModel
-from ..core.classify import unknown
 from ..core.egomotion import TranslationEstimate
 from ..core.pipeline import FrameResult, ObjectResult, Pipeline, PipelineConfig
-from ..core.telemetry import AttitudeSample, ClockSync, PositionSample, TelemetryBuffer
+from ..core.telemetry import AttitudeSample, PositionSample, TelemetryBuffer
 from ..mavlink import tcm_dialect as d
 from ..mavlink.endpoint import (
     AutopilotConflict,
@@ -100,259 +100,29 @@ from ..mavlink.endpoint import (
     TelemetryRejected,
     TrackingImageStatus,
 )
-from ..mavlink.params import config_with_params
+from ..mavlink.params import config_with_params, params_problem
 from .box_feed import INPUT_NAME as BOX_FEED
-from .box_feed import parse_feed_url
+from .daemon_config import DaemonConfig
+from .health import (
+    CompanionStats,
+    egomotion_quality_pct,
+    egomotion_source_code,
+    latency_percentile_ms,
+    mark_unknown,
+    status_line_text,
+)
 from .inputs import Inputs, InputSpec
 from .live_boxes import MAX_FRAMES_WAITING_FOR_BOXES, LiveBoxes
+from .outputs import FrameProcessed, HealthChecked, Output, ParamsChanged
+from .slots import CameraSlots, FrameSlot
+from .timesync_clock import TimesyncClock
 
 log = logging.getLogger(__name__)
-
-_EGO_SOURCE = {
-    "vision": d.TCM_EGOMOTION_SOURCE_VISION,
-    "autopilot": d.TCM_EGOMOTION_SOURCE_AUTOPILOT,
-    "fused": d.TCM_EGOMOTION_SOURCE_FUSED,
-}
-
 
 #: A camera's expected frame rate when the driver does not give one (Hz).
 DEFAULT_CAMERA_HZ = 25.0
 #: Frames dropped within this long make the pipeline "overloaded" (health flag, problem).
 OVERLOAD_WINDOW_US = 2_000_000
-
-
-def latency_percentile_ms(latencies_ms: Iterable[float], q: float) -> float:
-    """The ``q``-th percentile (0..100) of capture-to-MAVLink latencies (ms), NumPy's
-    linear interpolation between the closest ranks; NaN when there are none.
-
-    The one definition of every latency figure: the status line and
-    ``TCM_PIPELINE_HEALTH`` (:class:`Companion`), a run's :class:`~.plumbing.DaemonSummary`
-    (the SITL report, ``bench --daemon``) and the flight-log plots.
-    """
-    values = np.fromiter(latencies_ms, dtype=np.float64)
-    if not values.size:
-        return math.nan
-    return float(np.percentile(values, q))
-
-
-@dataclass(frozen=True)
-class DaemonConfig:
-    """``[daemon]``: timing and health policy of the service (times in µs)."""
-
-    # A frame may be this much newer than the newest attitude sample and still be
-    # processed at once (extrapolated); beyond it, it waits for the next sample ...
-    attitude_lead_max_us: int = 25_000
-    # ... but never longer than this after its capture time.
-    attitude_wait_max_us: int = 40_000
-    camera_timeout_us: int = 500_000  # a camera is stale after this long without a frame
-    attitude_timeout_us: int = 200_000  # ATTITUDE requested at 50 Hz
-    position_timeout_us: int = 1_000_000  # LOCAL_POSITION_NED requested at 10 Hz
-    health_interval_us: int = 1_000_000  # health check, watchdog ping, status line
-    rebuild_after_errors: int = 5  # consecutive failing frames before a pipeline rebuild
-    latency_window: int = 250  # frames in the running latency figure of the health message
-    # Where parameters and the signing timestamp live when their [mavlink] paths are
-    # relative. "": $STATE_DIRECTORY (systemd's StateDirectory=), else
-    # $XDG_STATE_HOME/tcm-companion, else ~/.local/state/tcm-companion.
-    state_dir: str = ""
-    # OpenCV worker threads for the pipeline (0: OpenCV's default, one per core). One is
-    # faster here: frames are small, and extra threads fight the camera threads and
-    # the event loop for the cores (tcm-companion bench --daemon).
-    opencv_threads: int = 1
-    # Python's GIL switch interval while the daemon runs (default Python: 5000 µs): how
-    # long a camera thread with a new frame may wait for the loop thread to let go.
-    gil_switch_interval_us: int = 1000
-    # Live boxes for [detection] backend = "boxes" (docs/box-feed.md): where another
-    # process on the companion sends them, "udp:HOST:PORT" ("": no feed) ...
-    box_feed: str = ""
-    # ... how long after its capture a frame waits for its boxes, at most (then it is
-    # processed without them: nothing detected in it, tracks coast) ...
-    box_wait_max_us: int = 100_000
-    # ... and the feed is stale (a fault; objects unknown) after this long without a
-    # valid message.
-    box_feed_timeout_us: int = 1_000_000
-    # A tracking camera's CAMERA_TRACKING_IMAGE_STATUS (its rectangle) as the boxes of
-    # camera box_tracking_camera (an index), stamped on receipt minus
-    # box_tracking_latency_us (the message has no time).
-    box_tracking: bool = False
-    box_tracking_camera: int = 0
-    box_tracking_latency_us: int = 50_000
-
-    def __post_init__(self) -> None:
-        if self.opencv_threads < 0:
-            raise ValueError(f"opencv_threads must be >= 0, got {self.opencv_threads}")
-        for name in ("box_tracking_camera", "box_tracking_latency_us"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        try:
-            parse_feed_url(self.box_feed)
-        except ValueError as exc:
-            raise ValueError(f"box_feed {exc}") from None
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if (
-                f.name not in ("opencv_threads", "box_tracking_camera", "box_tracking_latency_us")
-                and isinstance(value, int)
-                and not isinstance(value, bool)
-                and value <= 0
-            ):
-                raise ValueError(f"{f.name} must be > 0, got {value}")
-        if self.attitude_wait_max_us < self.attitude_lead_max_us:
-            raise ValueError("attitude_wait_max_us must be >= attitude_lead_max_us")
-
-
-@dataclass
-class CompanionStats:
-    frames_processed: int = 0
-    frames_dropped: int = 0  # superseded by a newer frame before processing, or at stop
-    frames_failed: int = 0  # the pipeline raised
-    frames_waited: int = 0  # processed after waiting for the attitude after them
-    frames_without_time_base: int = 0  # processed before the autopilot's clock was known
-    pipeline_rebuilds: int = 0
-    objects_sent: int = 0
-    objects_unknown_by_input: int = 0
-    faults: Counter[str] = field(default_factory=Counter)
-    # The live box feed (docs/box-feed.md): datagrams, accepted messages and their boxes,
-    # what was refused or not used (BOX_FEED_BAD), and frames with / without / waiting
-    # for boxes.
-    box_feed: Counter[str] = field(default_factory=Counter)
-
-
-# -- outputs ----------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class FrameProcessed:
-    """A frame went through its camera's pipeline (``result`` None: the pipeline raised).
-
-    Its MAVLink output is in :meth:`Companion.data_to_send`; ``clock_offset_us`` (the
-    autopilot-to-companion offset the pipeline used) and ``override`` (why the objects
-    were made unknown, "" if they were not) are what process replay needs."""
-
-    camera_id: int
-    result: FrameResult | None
-    capture_mono_us: int
-    arrival_mono_us: int  # delivered by the camera (on_frame)
-    process_mono_us: int  # processing started
-    waited: bool  # waited for the attitude sample after it
-    clock_offset_us: float
-    override: str
-    threshold: float
-    object_radius_m: float  # TCM_OBJ_RADIUS: what ranges were computed with
-
-
-@dataclass(frozen=True)
-class HealthChecked:
-    """The once-a-second health check ran (the daemon pings the watchdog and shows
-    ``status_line``); ``changes`` are the inputs whose problem changed (``""``: OK again)."""
-
-    now_mono_us: int
-    changes: tuple[tuple[str, str], ...]
-    status_line: str
-    report: HealthReport
-    problems: dict[str, str]  # input -> its problem ("" when healthy)
-
-
-@dataclass(frozen=True)
-class ParamsChanged:
-    """A ground station set one of our parameters (the driver persists and logs it)."""
-
-    name: str
-    value: float
-    now_mono_us: int
-
-
-Output = FrameProcessed | HealthChecked | ParamsChanged
-
-
-# -- internals --------------------------------------------------------------------------------
-@dataclass
-class _Slot:
-    """The newest delivered frame of a camera, not yet processed."""
-
-    image: np.ndarray
-    capture_mono_us: int
-    arrival_mono_us: int
-    waited: bool = False
-    waited_for_boxes: bool = False
-
-
-@dataclass
-class _Camera:
-    camera_id: int
-    name: str
-    model: CameraModel
-    pipeline: Pipeline
-    # Frames delivered and not yet processed, oldest first: the newest only, unless
-    # older ones still wait for their boxes (the live box feed).
-    pending: list[_Slot] = field(default_factory=list)
-    last_objects: tuple[ObjectResult, ...] = ()
-    last_capture_mono_us: int | None = None
-    last_processed_capture_mono_us: int | None = None  # whatever its result
-    consecutive_errors: int = 0
-
-
-class TimesyncClock(ClockSync):
-    """The pipeline's autopilot-boot-to-companion-monotonic clock, on TIMESYNC while fresh.
-
-    :class:`~tcm_companion.core.telemetry.ClockSync` fits the lower envelope of
-    ``receive time (_mono_us) - boot time (_boot_us)`` of the telemetry, which leaves the
-    link's smallest one-way latency in the offset (a fraction of a ms on UDP; on a USB
-    serial adapter with its latency timer, ms). TIMESYNC measures the offset with the
-    round trip and halves it, which removes that bias. This clock uses TIMESYNC's offset
-    when the endpoint has a fresh one that agrees with the telemetry fit to within
-    ``agree_us`` (so an autopilot reboot, seen first by one of them, never mixes two boot
-    clocks), and the telemetry fit otherwise. Process replay forces the offset the live
-    pipeline used (:meth:`forced`).
-    """
-
-    def __init__(self, endpoint: CompanionEndpoint, agree_us: int = 50_000) -> None:
-        super().__init__()
-        self.endpoint = endpoint
-        self.agree_us = agree_us
-        self._last_recv_mono_us = 0
-        self._forced_us: float | None = None
-        self.used_timesync = False
-
-    def observe(self, boot_us: int, recv_us: int) -> None:
-        super().observe(boot_us, recv_us)
-        self._last_recv_mono_us = max(self._last_recv_mono_us, int(recv_us))
-
-    def force(self, offset_us: float | None) -> None:
-        """Use ``offset_us`` (µs, companion monotonic minus autopilot boot) until
-        ``force(None)``; a non-finite value forces nothing."""
-        self._forced_us = (
-            float(offset_us) if offset_us is not None and math.isfinite(offset_us) else None
-        )
-
-    @property
-    def offset_us(self) -> float:
-        if self._forced_us is not None:
-            return self._forced_us
-        fit = super().offset_us
-        ts = self.endpoint.timesync
-        if (
-            ts.fresh(self._last_recv_mono_us)
-            and math.isfinite(fit)
-            and abs(ts.offset_us - fit) < self.agree_us
-        ):
-            self.used_timesync = True
-            return float(ts.offset_us)
-        self.used_timesync = False
-        return fit
-
-
-def mark_unknown(result: FrameResult, reason: str) -> FrameResult:
-    """``result`` with every object's state ``unknown`` for ``reason``."""
-    objs = tuple(
-        dataclasses.replace(
-            o,
-            state="unknown",
-            reason=reason,
-            classification=unknown(
-                reason, o.classification.interval_frames, o.classification.interval_s
-            ),
-        )
-        for o in result.objects
-    )
-    return dataclasses.replace(result, objects=objs)
 
 
 class Companion:
@@ -369,12 +139,15 @@ class Companion:
         *,
         camera_rates_hz: Sequence[float] | None = None,
         pipeline_timer: Callable[[], float] | None = None,
+        detector_model: bytes | None = None,
     ) -> None:
         """``camera_rates_hz``: the frame rate each camera is set to (the application's
         ``[camera] fps``; default :data:`DEFAULT_CAMERA_HZ` each): a camera is ``slow``
         below half of its own. ``pipeline_timer`` is what the pipelines time their stages
         with (seconds; default ``time.perf_counter``); the virtual-time SITL passes its
-        own so that nothing it records depends on the machine's speed."""
+        own so that nothing it records depends on the machine's speed. ``detector_model``:
+        the bytes of the ``onnx`` backend's model file (the driver reads it; None for the
+        other backends), kept for the pipelines' rebuilds."""
         if not cameras:
             raise ValueError("at least one camera is needed")
         rates = (
@@ -394,27 +167,28 @@ class Companion:
         # others (a seed hue range leaving the grow range) is refused by the endpoint,
         # never raised in the middle of the event loop.
         endpoint.param_check = self._param_problem
-        try:
-            self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
-        except ValueError as exc:
+        refused = params_problem(pipeline_config, endpoint.params.values)
+        if refused:
             # Stored values that cannot be applied together: the configuration's instead.
             endpoint.params.values.update(endpoint.params.defaults)
-            self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+        self.pipeline_config = config_with_params(pipeline_config, endpoint.params.values)
+        if refused:
             endpoint.statustext(
                 d.MAV_SEVERITY_WARNING,
-                f"TCM: stored parameters refused ({_short(exc)}); using the configuration's",
+                f"TCM: stored parameters refused ({refused}); using the configuration's",
                 now_mono_us,
             )
         self._timer_kw: dict[str, Callable[[], float]] = (
             {"timer": pipeline_timer} if pipeline_timer is not None else {}
         )
+        self._detector_model = detector_model
         names = list(camera_names) if camera_names else [f"camera{i}" for i in range(len(cameras))]
         # One telemetry buffer for every camera: attitude at each frame's capture time
         # through the TIMESYNC mapping, one clock fit.
         self.clock = TimesyncClock(endpoint)
         self.telemetry = TelemetryBuffer(clock=self.clock)
         self.cameras = [
-            _Camera(i, names[i], cam, self._new_pipeline(cam)) for i, cam in enumerate(cameras)
+            CameraSlots(i, names[i], cam, self._new_pipeline(cam)) for i, cam in enumerate(cameras)
         ]
         specs = [
             InputSpec(c.name, rate, config.camera_timeout_us)
@@ -458,7 +232,13 @@ class Companion:
         self._log_behind_reported = 0
 
     def _new_pipeline(self, model: CameraModel) -> Pipeline:
-        return Pipeline(model, self.pipeline_config, telemetry=self.telemetry, **self._timer_kw)
+        return Pipeline(
+            model,
+            self.pipeline_config,
+            telemetry=self.telemetry,
+            detector_model=self._detector_model,
+            **self._timer_kw,
+        )
 
     # -- inputs -----------------------------------------------------------------------------
     def on_frame(
@@ -484,7 +264,7 @@ class Companion:
             self._drop(now_mono_us)
         # A frame the attitude does not cover yet waits (bounded) for the next sample.
         waits = self.frame_deadline_us(camera_id, capture_mono_us) is not None
-        slot = _Slot(image, int(capture_mono_us), int(now_mono_us), waits)
+        slot = FrameSlot(image, int(capture_mono_us), int(now_mono_us), waits)
         slot.waited_for_boxes = self.boxes.deadline_us(camera_id, slot.capture_mono_us) is not None
         cam.pending = [*keep, slot]
 
@@ -648,7 +428,7 @@ class Companion:
             return None
         return capture_mono_us + self.config.attitude_wait_max_us
 
-    def _slot_due_us(self, cam: _Camera, slot: _Slot) -> int:
+    def _slot_due_us(self, cam: CameraSlots, slot: FrameSlot) -> int:
         deadline = self.frame_deadline_us(0, slot.capture_mono_us)
         due = slot.arrival_mono_us if deadline is None else deadline
         boxes = self.boxes.deadline_us(cam.camera_id, slot.capture_mono_us)
@@ -674,7 +454,7 @@ class Companion:
         )
 
     def _step(
-        self, cam: _Camera, image: np.ndarray, capture_mono_us: int, now_mono_us: int
+        self, cam: CameraSlots, image: np.ndarray, capture_mono_us: int, now_mono_us: int
     ) -> FrameResult | None:
         """The pipeline on one frame; an exception costs this frame only (None)."""
         try:
@@ -696,7 +476,7 @@ class Companion:
         cam.consecutive_errors = 0
         return result
 
-    def _process(self, cam: _Camera, now_mono_us: int) -> FrameProcessed:
+    def _process(self, cam: CameraSlots, now_mono_us: int) -> FrameProcessed:
         slot = cam.pending.pop(0)
         if slot.waited:
             self.stats.frames_waited += 1
@@ -768,11 +548,7 @@ class Companion:
 
     def _param_problem(self, values: Mapping[str, float]) -> str:
         """Why the parameter ``values`` cannot be applied to the pipeline ("" if they can)."""
-        try:
-            config_with_params(self.base_pipeline_config, values)
-        except ValueError as exc:
-            return _short(exc)
-        return ""
+        return params_problem(self.base_pipeline_config, values)
 
     def _apply_params(self, now_mono_us: int) -> None:
         new = config_with_params(self.base_pipeline_config, self.endpoint.params.values)
@@ -783,11 +559,9 @@ class Companion:
             self._rebuild(cam)
         self.endpoint.statustext(d.MAV_SEVERITY_INFO, "TCM: parameters applied", now_mono_us)
 
-    def _rebuild(self, cam: _Camera) -> None:
+    def _rebuild(self, cam: CameraSlots) -> None:
         # The shared telemetry keeps the attitude history and clock fit.
-        cam.pipeline = Pipeline(
-            cam.model, self.pipeline_config, telemetry=self.telemetry, **self._timer_kw
-        )
+        cam.pipeline = self._new_pipeline(cam.model)
         cam.consecutive_errors = 0
         self.stats.pipeline_rebuilds += 1
 
@@ -944,18 +718,13 @@ class Companion:
 
     def health_report(self, now_mono_us: int) -> HealthReport:
         tr = self._last_translation
-        quality = 0
-        if tr is not None and tr.valid and math.isfinite(tr.sigma_rad):
-            quality = round(100 * max(0.0, 1.0 - tr.sigma_rad / 0.2))
         p50 = latency_percentile_ms(self.latencies_ms, 50) if self.latencies_ms else 0.0
         return HealthReport(
             frame_rate_hz=self.frame_rate_hz(now_mono_us),
             latency_ms=p50,
             frames_dropped=self.stats.frames_dropped,
-            egomotion_source=_EGO_SOURCE.get(
-                tr.source if tr is not None else "", d.TCM_EGOMOTION_SOURCE_NONE
-            ),
-            egomotion_quality_pct=quality,
+            egomotion_source=egomotion_source_code(tr),
+            egomotion_quality_pct=egomotion_quality_pct(tr),
             health_flags=self.health_flags(now_mono_us),
             objects=sum(len(c.last_objects) for c in self.cameras),
             log_state=self.log_state,
@@ -963,40 +732,19 @@ class Companion:
 
     def status_line(self, now_mono_us: int) -> str:
         """One line: objects and states, nearest TTC, fps, latency, drops, problems."""
-        objs = [o for c in self.cameras for o in c.last_objects]
-        states: dict[str, int] = {}
-        for o in objs:
-            states[o.state] = states.get(o.state, 0) + 1
-        ttcs = [o.ttc_s for o in objs if o.ttc_s == o.ttc_s]
-        st = ", ".join(f"{n} {s}" for s, n in sorted(states.items())) or "none"
-        if self.latencies_ms:
-            p50, p99 = (latency_percentile_ms(self.latencies_ms, q) for q in (50, 99))
-            latency = f"latency p50 {p50:.1f} p99 {p99:.1f} ms"
-        else:
-            latency = "latency n/a"  # no frame's output written yet
         problems = [s.problem for s in self.inputs.status(now_mono_us).values() if s.problem]
         overload = self.overload_problem(now_mono_us)
         if overload:
             problems.append(overload)
         if self.conflict:
             problems.append(self.conflict)
-        head = f"objects {len(objs)} ({st}) | "
-        if ttcs:
-            head += f"TTC {min(ttcs):.1f}s | "
-        if len(self._frame_times_mono_us) < 2 and now_mono_us - self._started_mono_us < 2_000_000:
-            rate = "starting"  # no two frames yet to measure a rate on: not "0.0 fps"
-        else:
-            rate = f"{self.frame_rate_hz(now_mono_us):4.1f} fps"
-        return head + (
-            f"{rate} | {latency}"
-            f" | drops {self.stats.frames_dropped}{self.boxes.status()} | "
-            + ("; ".join(problems) if problems else "inputs OK")
+        starting = (
+            len(self._frame_times_mono_us) < 2 and now_mono_us - self._started_mono_us < 2_000_000
         )
-
-
-def _short(exc: Exception) -> str:
-    """A configuration error without its class prefix ("DetectionConfig.seed_hue_deg ..."
-    -> "seed_hue_deg ..."), for a STATUSTEXT."""
-    text = str(exc)
-    head, dot, rest = text.partition(".")
-    return rest if dot and head.endswith("Config") and " " not in head else text
+        return status_line_text(
+            [o for c in self.cameras for o in c.last_objects],
+            None if starting else self.frame_rate_hz(now_mono_us),
+            self.latencies_ms,
+            f"{self.stats.frames_dropped}{self.boxes.status()}",
+            problems,
+        )

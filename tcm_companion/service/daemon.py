@@ -20,7 +20,9 @@ with its outputs in :mod:`.plumbing` (shared with the virtual-time SITL).
   so a stuck loop sends no ping.
 - Shutdown (SIGTERM/SIGINT, or ``stop``): the tasks of a ``TaskGroup`` end, then an
   ``AsyncExitStack`` undoes the start-up in reverse — notify STOPPING, stop the camera
-  threads, persist parameters and the signing timestamp, close the link.
+  threads, close the box feed. What was there before the daemon (the endpoint, the link,
+  the flight log) is :mod:`.runner`'s, which persists the parameters and the signing
+  timestamp, closes the link and stops the log after the daemon's run.
 
 Frame accounting always closes: ``captured = processed + failed + dropped + rejected``
 (rejected: empty or wrong-sized frames refused by the reader; dropped: superseded, or
@@ -44,11 +46,13 @@ import cv2
 from ..core.pipeline import FrameResult, PipelineConfig
 from ..io.aio import MONOTONIC, LoopClock
 from ..io.cameras.base import Frame
-from ..io.transports import Transport, TransportError, open_transport
+from ..io.detector_model import read_detector_model
+from ..io.transports import Transport, TransportError
 from ..mavlink.endpoint import CompanionEndpoint
 from .box_feed import open_box_feed
-from .companion import Companion, DaemonConfig
-from .endpoint_setup import MavlinkSettings, make_endpoint, persist
+from .companion import Companion
+from .daemon_config import DaemonConfig
+from .endpoint_setup import MavlinkSettings
 from .plumbing import CameraInput, DaemonSummary, NotifierLike, Plumbing
 
 if TYPE_CHECKING:
@@ -93,10 +97,12 @@ def name_os_threads() -> None:
 class Daemon:
     """``tcm-companion run``: cameras + pipeline + MAVLink until stopped.
 
-    ``transport`` and ``endpoint`` default to what ``config.mavlink`` describes; tests
-    and SITL pass their own. ``on_result`` sees every processed frame (SITL scores them),
-    ``on_status`` the status line once a second. ``clock`` is what the daemon stamps
-    every time with and waits on (the companion monotonic clock).
+    Put together by :func:`~.runner.open_service`, which makes the ``endpoint`` from the
+    configuration and its state files and opens the ``transport`` (or takes the caller's).
+    ``on_result`` sees every processed frame (SITL scores them), ``on_status`` the status
+    line once a second. ``clock`` is what the daemon stamps every time with and waits on
+    (the companion monotonic clock). ``persist``: write the parameters and the signing
+    timestamp back, called when parameters change (None: not written as they change).
     """
 
     def __init__(
@@ -104,15 +110,15 @@ class Daemon:
         config: ServiceConfig,
         cameras: Sequence[CameraInput],
         *,
-        transport: Transport | None = None,
-        endpoint: CompanionEndpoint | None = None,
+        transport: Transport,
+        endpoint: CompanionEndpoint,
         notifier: NotifierLike | None = None,
         watchdog_interval_us: int | None = None,
         clock: LoopClock = MONOTONIC,
         on_result: Callable[[int, FrameResult], None] | None = None,
         on_status: Callable[[str], None] | None = None,
         flight_log: FlightLog | None = None,
-        persist_params: bool = False,
+        persist: Callable[[], None] | None = None,
     ) -> None:
         if not cameras:
             raise ValueError("the daemon needs at least one camera")
@@ -125,9 +131,7 @@ class Daemon:
         self.on_result = on_result
         self.on_status = on_status
         self.flight_log = flight_log
-        # Write parameter changes to config.mavlink's files at once (always when the
-        # daemon made the endpoint from the configuration itself).
-        self._persist_params = persist_params
+        self._persist = persist
         interval = config.daemon.health_interval_us
         if watchdog_interval_us is not None:
             interval = min(interval, watchdog_interval_us)
@@ -242,19 +246,7 @@ class Daemon:
         # (handoff p50 2.3 ms -> see docs/daemon.md for the measurement).
         sys.setswitchinterval(self.config.daemon.gil_switch_interval_us / 1e6)
         async with contextlib.AsyncExitStack() as stack:
-            # MAVLink: endpoint (persisted params, signing) and the transport.
-            endpoint = self._endpoint
-            if endpoint is None:
-                endpoint, warnings = make_endpoint(self.config.mavlink, t0, self.config.pipeline)
-                self._persist_params = True
-                for w in warnings:
-                    log.warning("%s", w)
-                stack.callback(persist, self.config.mavlink, endpoint)
-            transport = self._transport
-            if transport is None:
-                transport = open_transport(self.config.mavlink.url, reconnect=True)
-                await transport.open()
-                stack.push_async_callback(transport.close)
+            endpoint, transport = self._endpoint, self._transport
             daemon_cfg = dataclasses.replace(
                 self.config.daemon, health_interval_us=self.health_interval_us
             )
@@ -266,9 +258,8 @@ class Daemon:
                 daemon_cfg,
                 [c.name for c in self.camera_inputs],
                 camera_rates_hz=[c.fps for c in self.camera_inputs],
+                detector_model=read_detector_model(self.config.pipeline.detection),
             )
-            mavlink_cfg = self.config.mavlink
-            ep = endpoint
             self.plumbing = Plumbing(
                 self.companion,
                 self.camera_inputs,
@@ -276,7 +267,7 @@ class Daemon:
                 notifier=self.notifier,
                 on_result=self.on_result,
                 on_status=self.on_status,
-                persist=(lambda: persist(mavlink_cfg, ep)) if self._persist_params else None,
+                persist=self._persist,
                 loop_healthy=self._loop_healthy,
             )
             notifier = self.plumbing.notifier

@@ -31,7 +31,7 @@ from .box_feed import INPUT_NAME, BoxFeedError, box_in_image, parse_box_datagram
 from .inputs import Inputs
 
 if TYPE_CHECKING:
-    from .companion import DaemonConfig
+    from .daemon_config import DaemonConfig
 
 log = logging.getLogger(__name__)
 
@@ -94,16 +94,13 @@ class LiveBoxes:
 
     @staticmethod
     def check(config: DaemonConfig, cameras: Sequence[CameraView]) -> None:
-        """Raise ValueError when ``config`` asks for a feed these cameras cannot take."""
-        if config.box_tracking and not 0 <= config.box_tracking_camera < len(cameras):
-            raise ValueError(
-                f"box_tracking_camera {config.box_tracking_camera} is not a camera"
-                f" (0..{len(cameras) - 1})"
-            )
-        if LiveBoxes.configured(config):
-            for c in cameras:
-                if not isinstance(c.pipeline.detector, BoxesDetector):
-                    raise ValueError('a box feed needs [detection] backend = "boxes"')
+        """Raise ValueError when ``config`` asks for a feed these cameras cannot take
+        (:meth:`~.daemon_config.DaemonConfig.feed_problem`)."""
+        backends = [c.pipeline.config.detection.backend for c in cameras]
+        backend = next((b for b in backends if b != "boxes"), "boxes")
+        problem = config.feed_problem(backend, len(cameras))
+        if problem is not None:
+            raise ValueError(problem[1])
 
     # -- messages ---------------------------------------------------------------------------
     def on_datagram(self, data: bytes, now_mono_us: int) -> str:

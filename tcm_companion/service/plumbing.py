@@ -33,15 +33,9 @@ from ..flightlog import topics
 from ..io.allocator import trim_heap
 from ..io.cameras.base import CameraStats, Frame, FrameSource
 from ..mavlink import tcm_dialect as d
-from .companion import (
-    Companion,
-    CompanionStats,
-    FrameProcessed,
-    HealthChecked,
-    Output,
-    ParamsChanged,
-    latency_percentile_ms,
-)
+from .companion import Companion
+from .health import CompanionStats, latency_percentile_ms
+from .outputs import FrameProcessed, HealthChecked, Output, ParamsChanged
 
 if TYPE_CHECKING:
     from ..flightlog.handle import FlightLog
@@ -164,7 +158,7 @@ class DaemonSummary:
         )
 
     def latency_percentile_ms(self, q: float) -> float:
-        """:func:`~.companion.latency_percentile_ms` of the run's latencies."""
+        """:func:`~.health.latency_percentile_ms` of the run's latencies."""
         return latency_percentile_ms(self.latencies_ms, q)
 
 
@@ -284,7 +278,7 @@ class Plumbing:
                     except OSError as exc:
                         log.warning("cannot persist parameters: %s", exc)
             elif isinstance(out, HealthChecked):
-                self._health_checked(out)
+                self.health_checked(out)
 
     def bytes_to_send(self, now_mono_us: int) -> bytes:
         """What the Companion has for the link, logged as written at ``now_mono_us``."""
@@ -351,7 +345,11 @@ class Plumbing:
             out.camera_id, out.result.t_us, annotation_circles(out.result, model)
         )
 
-    def _health_checked(self, hc: HealthChecked) -> None:
+    def health_checked(self, hc: HealthChecked) -> None:
+        """The Companion's once-a-second health check ran: input changes logged, the
+        watchdog pinged (or withheld), the health record logged, the status shown.
+        ``health_checks`` counts the calls (the first is about 1 s into the run; tools
+        that measure the steady state wrap this method to start after start-up)."""
         self.health_checks += 1
         if self.health_checks in (1, 5):
             # Start-up is over (imports, renderer or camera set-up, first frames): return

@@ -8,9 +8,9 @@ and the vehicles that fly it.
   ``detections.csv`` I/O (:mod:`.scene.scenario_io`), and the simulated camera sources
   (:mod:`.scene.truth_camera`, :mod:`.scene.autopilot_camera`).
 - :mod:`.vehicle` — what flies it: the telemetry an autopilot would send
-  (:mod:`.vehicle.telemetry`), the mock autopilot and its parts (``mock_*``), the
-  ArduPilot applet inside it (:mod:`.vehicle.lua_applet`) and real ArduCopter SITL
-  (:mod:`.vehicle.ardupilot_sitl`).
+  (:mod:`.vehicle.telemetry`), the mock autopilot and its parts (``mock_*``) and the
+  ArduPilot applet inside it (:mod:`.vehicle.lua_applet`). Real ArduCopter SITL is no
+  simulator of ours: :mod:`tcm_companion.sitl` runs it.
 - :mod:`.sources` — registers the simulated cameras as ``[camera] source = "sim"`` and
   ``"sim_autopilot"``.
 

@@ -3,7 +3,7 @@
 ``tcm-companion sitl --autopilot ardupilot --scenario crossing|headon`` (and
 tests/test_ardupilot_flight.py) runs, in one process and in real time:
 
-- ArduPilot's own SITL binary (:class:`~tcm_companion.sim.vehicle.ardupilot_sitl.ArduPilotSitl`:
+- ArduPilot's own SITL binary (:class:`~tcm_companion.sitl.ardupilot_vehicle.ArduPilotSitl`:
   ``$TCM_ARDUPILOT_SITL`` or ``../shared/ardupilot-sitl/bin/arducopter``) with Lua on and
   ``tools/ardupilot/tcm_avoid.lua`` in its ``scripts/``; a ground-station link on SERIAL0
   that flies the vehicle (GUIDED, take-off, a steady velocity) and records its modes and
@@ -35,7 +35,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,14 +43,15 @@ import numpy as np
 
 from ..config import AppConfig
 from ..core.pipeline import FrameResult
+from ..io.aio import monotonic_us
 from ..io.transports import open_transport
 from ..io.truth import match_truth
+from ..mavlink.copter_modes import mode_name, mode_number
 from ..mavlink.endpoint import CompanionEndpoint
-from ..service.daemon import CameraInput, Daemon, DaemonSummary
-from ..service.endpoint_setup import make_endpoint, resolve_state_paths
-from ..service.link import monotonic_us
+from ..service.daemon import CameraInput, DaemonSummary
+from ..service.runner import open_service
 from ..sim.scene.autopilot_camera import AutopilotSimCamera, Launch, SceneSettings
-from ..sim.vehicle.ardupilot_sitl import ArduPilotSitl, mode_name, mode_number
+from .ardupilot_vehicle import ArduPilotSitl
 
 log = logging.getLogger(__name__)
 
@@ -410,29 +411,28 @@ async def daemon_on_sitl(
     **daemon_kwargs: Any,
 ) -> AsyncIterator[tuple[asyncio.Task[DaemonSummary], CompanionEndpoint]]:
     """The daemon on the SITL's SERIAL1 with ``camera``, its state in ``state_dir``, as it
-    runs on a drone: yields its task and endpoint; stopped (and its link closed) on exit.
-    The task's result is the run's summary, or the exception that ended it."""
-    settings = resolve_state_paths(config.mavlink, state_dir)
-    endpoint, warnings = make_endpoint(settings, monotonic_us(), config.pipeline)
-    for w in warnings:
-        log.warning("%s", w)
+    runs on a drone: yields its task and endpoint; stopped (its state persisted, its link
+    closed) on exit. The task's result is the run's summary, or the exception that ended
+    it."""
     link = open_transport(sitl.serial1_url)
     await link.open()
     cam = config.camera
-    daemon = Daemon(
-        replace(config, mavlink=settings),
-        [CameraInput(cam.name, cam.model, camera)],
-        transport=link,
-        endpoint=endpoint,
-        **daemon_kwargs,
-    )
-    stop = asyncio.Event()
-    task = asyncio.create_task(daemon.run(stop), name="daemon")
     try:
-        yield task, endpoint
+        async with open_service(
+            config,
+            [CameraInput(cam.name, cam.model, camera)],
+            state_dir=state_dir,
+            transport=link,
+            **daemon_kwargs,
+        ) as service:
+            stop = asyncio.Event()
+            task = asyncio.create_task(service.run(stop), name="daemon")
+            try:
+                yield task, service.endpoint
+            finally:
+                stop.set()
+                await asyncio.wait([task])
     finally:
-        stop.set()
-        await asyncio.wait([task])
         await link.close()
 
 
@@ -472,12 +472,14 @@ async def fly_scene(
             if task.done():
                 task.result()  # raise what stopped it
             for name, value in APPLET_PARAMS.items():
-                await asyncio.to_thread(sitl.set_param, name, value)
+                await asyncio.to_thread(sitl.gcs.set_param, name, value)
             for name, value in plan.companion_params:
-                await asyncio.to_thread(sitl.set_param, name, value, 10.0, endpoint.component_id)
-            await asyncio.to_thread(sitl.set_param, "TCMA_TTC", plan.ttc_alarm_s)
-            await asyncio.to_thread(sitl.set_param, "TCMA_MIN_CONF", plan.min_conf_pct)
-            if sitl.armed:
+                await asyncio.to_thread(
+                    sitl.gcs.set_param, name, value, 10.0, endpoint.component_id
+                )
+            await asyncio.to_thread(sitl.gcs.set_param, "TCMA_TTC", plan.ttc_alarm_s)
+            await asyncio.to_thread(sitl.gcs.set_param, "TCMA_MIN_CONF", plan.min_conf_pct)
+            if sitl.gcs.armed:
                 await asyncio.to_thread(sitl.set_mode, "GUIDED")
             else:
                 await asyncio.to_thread(sitl.takeoff, plan.altitude_m)
@@ -490,17 +492,17 @@ async def fly_scene(
                 launch = camera.launch
                 assert launch is not None
                 left_s = launch.contact_us / 1e6 + 2.0 - time.monotonic()
-                await _until(lambda: sitl.mode == BRAKE, max(0.5, left_s))
+                await _until(lambda: sitl.gcs.mode == BRAKE, max(0.5, left_s))
             sitl.stop_velocity()
             watch_until = time.monotonic() + plan.watch_s
-            if sitl.mode == BRAKE and plan.pilot_mode is not None:
+            if sitl.gcs.mode == BRAKE and plan.pilot_mode is not None:
                 await asyncio.sleep(plan.pilot_after_s)
                 pilot_t = time.monotonic()
                 await asyncio.to_thread(sitl.set_mode, plan.pilot_mode)
 
             def cleared() -> bool:
                 return (
-                    _text_time([(x.t_s, x.text) for x in sitl.statustexts(t0)], CLEAR_TEXT)[0]
+                    _text_time([(x.t_s, x.text) for x in sitl.gcs.statustexts(t0)], CLEAR_TEXT)[0]
                     is not None
                 )
 
@@ -511,15 +513,17 @@ async def fly_scene(
         except Exception as exc:  # reported, not raised: the report says what happened
             failures.append(f"the daemon failed: {exc!r}")
 
-    texts = [(s.t_s, s.text) for s in sitl.statustexts(t0)]
-    brake_hb = next((m.t_s for m in sitl.mode_changes() if m.mode == BRAKE and m.t_s >= t0), None)
+    texts = [(s.t_s, s.text) for s in sitl.gcs.statustexts(t0)]
+    brake_hb = next(
+        (m.t_s for m in sitl.gcs.mode_changes() if m.mode == BRAKE and m.t_s >= t0), None
+    )
     brake_text_t, brake_text = _text_time(texts, r"-> BRAKE$")
     clear_t, _ = _text_time(texts, CLEAR_TEXT)
     stand_t, _ = _text_time(texts, r"^TCM: pilot mode change, standing down")
     first_brake = min((t for t in (brake_hb, brake_text_t) if t is not None), default=None)
     modes = [
         (m.t_s, mode_name(m.mode))
-        for m in sitl.mode_changes()
+        for m in sitl.gcs.mode_changes()
         if first_brake is not None and m.t_s >= first_brake - 1e-3
     ]
     report = FlightReport(

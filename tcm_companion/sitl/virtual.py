@@ -40,7 +40,8 @@ from typing import Any, Protocol
 
 from ..core.pipeline import FrameResult
 from ..io.cameras.reader import ReaderCore
-from ..service.companion import Companion, FrameProcessed
+from ..service.companion import Companion
+from ..service.outputs import FrameProcessed
 from ..service.plumbing import CameraInput, DaemonSummary, Plumbing
 
 log = logging.getLogger(__name__)

@@ -33,12 +33,21 @@ from .settings import BACKENDS, ColourTarget, DetectionConfig
 Detector = ColourDetector
 
 
-def make_detector(camera: CameraModel, config: DetectionConfig) -> DetectorBackend:
-    """The backend ``config.backend`` names, for ``camera``."""
+def make_detector(
+    camera: CameraModel, config: DetectionConfig, model: bytes | None = None
+) -> DetectorBackend:
+    """The backend ``config.backend`` names, for ``camera``. ``model``: the bytes of the
+    model file the onnx backend runs (the caller reads ``config.onnx_model``; see
+    :func:`tcm_companion.io.detector_model.read_detector_model`)."""
     if config.backend == "boxes":
         return BoxesDetector(camera, config)
     if config.backend == "onnx":
-        return OnnxDetector(camera, config)
+        if model is None:
+            raise OnnxModelError(
+                f"onnx_model {config.onnx_model!r}: the model's bytes were not given "
+                "(read the file with tcm_companion.io.detector_model.read_detector_model)"
+            )
+        return OnnxDetector(camera, config, model)
     return ColourDetector(camera, config)
 
 

@@ -21,12 +21,12 @@ Per frame:
    panorama, two boxes of one class meeting at the left and right edges with the same
    rows are one object across the seam (``x_min > x_max``).
 
-Pure: the network is loaded once from the path given; no other IO, no clock.
+Pure: the network is loaded once from the model's bytes (the edge reads the file,
+:mod:`tcm_companion.io.detector_model`); no IO, no clock. ``onnx_model`` (the file's
+path) only names the model in error messages.
 """
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -96,18 +96,17 @@ class OnnxDetector(DetectorBackend):
 
     backend = "onnx"
 
-    def __init__(self, camera: CameraModel, config: DetectionConfig) -> None:
+    def __init__(self, camera: CameraModel, config: DetectionConfig, model: bytes) -> None:
+        """``model``: the bytes of the ONNX file ``config.onnx_model`` names (read by the
+        caller; the path only names the model in errors)."""
         super().__init__(camera)
         self.config = config
-        path = Path(config.onnx_model)
-        if not path.is_file():
-            raise OnnxModelError(f"onnx_model {str(path)!r}: no such file")
+        where = config.onnx_model
         try:
-            self.net = cv2.dnn.readNetFromONNX(str(path))
+            self.net = cv2.dnn.readNetFromONNX(np.frombuffer(model, dtype=np.uint8))
         except cv2.error as exc:
             raise OnnxModelError(
-                f"onnx_model {str(path)!r}: OpenCV cannot read it as an ONNX model "
-                f"({_first_line(exc)})"
+                f"onnx_model {where!r}: OpenCV cannot read it as an ONNX model ({_first_line(exc)})"
             ) from None
         in_w, in_h = config.onnx_input_size
         self.letterbox = Letterbox(camera.width, camera.height, in_w, in_h)
@@ -115,7 +114,7 @@ class OnnxDetector(DetectorBackend):
         self._wrap = wraps_around(camera)
         # One forward pass on a grey frame: the output layout is checked once, here.
         shape = self._forward(np.full((camera.height, camera.width, 3), PAD_VALUE, np.uint8)).shape
-        self.n_classes = _check_layout(shape, config.onnx_class_names, str(path))
+        self.n_classes = _check_layout(shape, config.onnx_class_names, where)
         if config.onnx_class_names:
             self.class_names = tuple(config.onnx_class_names)
         elif self.n_classes == len(COCO_NAMES):

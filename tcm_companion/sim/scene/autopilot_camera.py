@@ -11,7 +11,8 @@ The link. The camera has its *own* MAVLink connection (``url``: ``tcp:HOST:PORT`
 :mod:`tcm_companion.io.transports`, reopened with backoff when lost), framed by the
 project's :class:`~tcm_companion.mavlink.codec.MavlinkCodec` (MAVLink 2, our dialect,
 which includes ``common``; no process-global pymavlink state is touched). It runs in a
-background thread with its own asyncio loop and:
+background thread with its own asyncio loop (a :class:`~tcm_companion.io.link_thread.LinkThread`,
+like the SITL drivers' ground station) and:
 
 - sends a HEARTBEAT (``MAV_TYPE_CAMERA``, ``MAV_AUTOPILOT_INVALID``) at 1 Hz as system
   ``system_id`` (1), component ``component_id`` (100, ``MAV_COMP_ID_CAMERA``);
@@ -73,8 +74,6 @@ and the balls' centres, for scoring.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import logging
 import math
 import threading
@@ -90,13 +89,15 @@ from ...core.frames import FloatArray
 from ...core.telemetry import AttitudeSample, PositionSample, TelemetryBuffer
 from ...io.cameras.base import CameraError, CameraGone, FrameSource, monotonic_us
 from ...io.cameras.settings import SIM_SCENE_KINDS, SimSceneKind, StaticBall
+from ...io.link_thread import LinkThread
+from ...io.transports import TransportError
 from ...mavlink import tcm_dialect as mav
+from ...mavlink.codec import MavlinkCodec
 from ...mavlink.samples import sample_from_message
 from .world import BALL_ALBEDO_RGB, BALL_RADIUS_M, Ball, Trajectory, World, vec3
 
 if TYPE_CHECKING:
     from ...core.camera import CameraModel
-    from ...io.transports import Transport
     from .render import Renderer
 
 __all__ = [
@@ -261,7 +262,8 @@ def check_url(url: str) -> None:
 class _Link:
     """The camera's own MAVLink connection: heartbeat, stream requests, telemetry in.
 
-    ``on_sample(sample)`` is called from the link's thread for every ATTITUDE and
+    The protocol is here; a :class:`~tcm_companion.io.link_thread.LinkThread` moves the
+    bytes. ``on_sample(sample)`` is called from the link's thread for every ATTITUDE and
     LOCAL_POSITION_NED of the target autopilot, stamped with ``clock_us()`` at receipt.
     """
 
@@ -288,13 +290,17 @@ class _Link:
         self._stats_lock = threading.Lock()
         self._last_rx_us: dict[int, int] = {}
         self._last_req_us: dict[int, int] = {}
-        self._thread: threading.Thread | None = None
-        self._ready = threading.Event()
-        self._stopping = threading.Event()
-        self._error: BaseException | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stop: asyncio.Event | None = None
-        self._transport: Transport | None = None
+        self._next_heartbeat_us = 0
+        self._codec = MavlinkCodec(system_id, component_id)
+        self._thread = LinkThread(
+            url,
+            on_data=self._receive,
+            on_tick=self._transmit,
+            on_link_down=lambda: self._count("link_down"),
+            initial_backoff_s=0.1,
+            max_backoff_s=1.0,
+            name=f"sim_autopilot link {url}",
+        )
 
     # -- from the camera's thread --------------------------------------------------------
     def start(self, timeout_s: float = 5.0) -> None:
@@ -302,111 +308,40 @@ class _Link:
 
         A TCP or serial link whose peer is not there yet is *not* an error: it is retried
         in the background (frames have no pose meanwhile)."""
-        self._thread = threading.Thread(
-            target=self._run, name=f"sim_autopilot link {self.url}", daemon=True
-        )
-        self._thread.start()
-        if not self._ready.wait(timeout_s):
-            self.stop()
-            raise CameraError(f"{self.url}: link did not start within {timeout_s} s")
-        if self._error is not None:
-            self.stop()
-            raise CameraError(f"{self.url}: {self._error}")
+        try:
+            self._thread.start(timeout_s)
+        except TransportError as exc:
+            raise CameraError(str(exc)) from None
 
     def stop(self, timeout_s: float = 2.0) -> bool:
         """Close the transport and end the thread; True if it ended within ``timeout_s``."""
-        self._stopping.set()
-        loop, stop = self._loop, self._stop
-        if loop is not None and stop is not None:
-            with contextlib.suppress(RuntimeError):  # the loop already closed
-                loop.call_soon_threadsafe(stop.set)
-        thread = self._thread
-        if thread is None:
-            return True
-        thread.join(timeout_s)
-        return not thread.is_alive()
+        return self._thread.stop(timeout_s)
 
     @property
     def alive(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        return self._thread.alive
 
     def snapshot(self) -> tuple[dict[str, int], dict[str, int]]:
         """``(messages by type, link counters)``, copied consistently."""
         with self._stats_lock:
-            return dict(self.messages), dict(self.stats)
+            stats = dict(self.stats)
+        if self._thread.send_errors:
+            stats["send_errors"] = self._thread.send_errors
+        with self._stats_lock:
+            return dict(self.messages), stats
 
     def _count(self, key: str, n: int = 1) -> None:
         with self._stats_lock:
             self.stats[key] += n
 
-    # -- the thread ----------------------------------------------------------------------
-    def _run(self) -> None:
-        try:
-            asyncio.run(self._main())
-        except BaseException as exc:  # a bug of ours: make it visible, end the link
-            log.exception("sim_autopilot link %s crashed", self.url)
-            self._error = self._error or exc
-        finally:
-            self._ready.set()
-
-    async def _main(self) -> None:
-        from ...io.transports import RECONNECTABLE, open_transport
-        from ...mavlink.codec import MavlinkCodec
-
-        self._stop = asyncio.Event()
-        self._loop = asyncio.get_running_loop()
-        if self._stopping.is_set():
-            return
-        codec = MavlinkCodec(self.system_id, self.component_id)
-        try:
-            backoff: dict[str, Any] = {}
-            if self.url.partition(":")[0] in RECONNECTABLE:
-                backoff = {"initial_backoff_s": 0.1, "max_backoff_s": 1.0}
-            transport = open_transport(self.url, reconnect=True, **backoff)
-            await transport.open()
-        except Exception as exc:
-            self._error = exc
-            return
-        self._transport = transport
-        self._ready.set()
-        tasks = [
-            asyncio.create_task(self._stop.wait(), name="sim_autopilot stop"),
-            asyncio.create_task(self._receive(transport, codec), name="sim_autopilot rx"),
-            asyncio.create_task(self._transmit(transport, codec), name="sim_autopilot tx"),
-        ]
-        try:
-            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-            for t in tasks:
-                if t.done() and not t.cancelled() and t.exception() is not None:
-                    raise RuntimeError(f"{t.get_name()} failed") from t.exception()
-        finally:
-            for t in tasks:
-                t.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            await transport.close()
-
-    async def _receive(self, transport: Transport, codec: Any) -> None:
-        from ...io.transports import LinkDown, TransportClosed, TransportTimeout
-
-        while True:
+    # -- the link's thread ---------------------------------------------------------------
+    def _receive(self, data: bytes) -> None:
+        now = int(self.clock_us())
+        for msg in self._codec.feed(data):
             try:
-                data = await transport.recv()
-            except LinkDown:
-                self._count("link_down")
-                wait_connected = getattr(transport, "wait_connected", None)
-                if wait_connected is None:
-                    return
-                with contextlib.suppress(TransportTimeout):
-                    await wait_connected()
-                continue
-            except TransportClosed:
-                return
-            now = int(self.clock_us())
-            for msg in codec.feed(data):
-                try:
-                    self._handle(msg, now)
-                except Exception:  # a hostile value: count it, carry on
-                    self._count("handler_errors")
+                self._handle(msg, now)
+            except Exception:  # a hostile value: count it, carry on
+                self._count("handler_errors")
 
     def _handle(self, msg: Any, now_us: int) -> None:
         kind = msg.get_type()
@@ -434,50 +369,41 @@ class _Link:
                 self._last_rx_us[mid] = now_us
                 self.on_sample(sample)
 
-    async def _transmit(self, transport: Transport, codec: Any) -> None:
-        from ...io.transports import TransportClosed, TransportError
-
+    def _transmit(self) -> tuple[list[bytes], float]:
+        """The frames due now (heartbeat, stream requests) and the time to the next tick."""
+        codec = self._codec
         m = codec.mav
-        next_heartbeat = 0
-        while True:
-            now = int(self.clock_us())
-            out: list[bytes] = []
-            if now >= next_heartbeat:
-                out.append(
-                    codec.encode(
-                        m.heartbeat_encode(
-                            mav.MAV_TYPE_CAMERA,
-                            mav.MAV_AUTOPILOT_INVALID,
-                            0,
-                            0,
-                            mav.MAV_STATE_ACTIVE,
-                        )
+        now = int(self.clock_us())
+        out: list[bytes] = []
+        if now >= self._next_heartbeat_us:
+            out.append(
+                codec.encode(
+                    m.heartbeat_encode(
+                        mav.MAV_TYPE_CAMERA,
+                        mav.MAV_AUTOPILOT_INVALID,
+                        0,
+                        0,
+                        mav.MAV_STATE_ACTIVE,
                     )
                 )
-                self._count("heartbeats_sent")
-                next_heartbeat = now + _HEARTBEAT_PERIOD_US
-            for mid, interval in self.intervals_us.items():
-                heard = self._last_rx_us.get(mid)
-                asked = self._last_req_us.get(mid)
-                if heard is not None and now - heard <= _STREAM_TIMEOUT_US:
-                    continue
-                if asked is not None and now - asked < _REQUEST_PERIOD_US:
-                    continue
-                self._last_req_us[mid] = now
-                tsys, tcomp = self.target
-                cmd = m.command_long_encode(
-                    tsys, tcomp, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mid, interval, 0, 0, 0, 0, 0
-                )
-                out.append(codec.encode(cmd))
-                self._count("interval_requests")
-            for frame in out:
-                try:
-                    await transport.send(frame)
-                except TransportClosed:
-                    return
-                except TransportError:  # link down (reconnecting) or a write timeout
-                    self._count("send_errors")
-            await asyncio.sleep(_TX_TICK_S)
+            )
+            self._count("heartbeats_sent")
+            self._next_heartbeat_us = now + _HEARTBEAT_PERIOD_US
+        for mid, interval in self.intervals_us.items():
+            heard = self._last_rx_us.get(mid)
+            asked = self._last_req_us.get(mid)
+            if heard is not None and now - heard <= _STREAM_TIMEOUT_US:
+                continue
+            if asked is not None and now - asked < _REQUEST_PERIOD_US:
+                continue
+            self._last_req_us[mid] = now
+            tsys, tcomp = self.target
+            cmd = m.command_long_encode(
+                tsys, tcomp, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mid, interval, 0, 0, 0, 0, 0
+            )
+            out.append(codec.encode(cmd))
+            self._count("interval_requests")
+        return out, _TX_TICK_S
 
 
 # --------------------------------------------------------------------------------------

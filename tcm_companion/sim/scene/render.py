@@ -38,42 +38,57 @@ Appearance:
 - output: linear RGB → display gamma 2 → 8 bits, plus Gaussian sensor noise (seeded),
   BGR ``uint8``. Fisheye pixels outside the model's valid region or outside
   ``fisheye_fov_deg`` are black.
+
+Beside this module, one job each: :mod:`.tiles` (the tile-major pixel layout, its cones,
+the per-frame buffers), :mod:`.planar` (gathers, scatters, blends and remap sampling of
+planar pixel data) and :mod:`.shadows` (shadow coverage of each caster, the clutter's
+shadows baked into the ground texture, a solid target's outline hull).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
 
-from ...core.camera import CameraModel, Fisheye
+from ...core.camera import CameraModel
 from ...core.frames import FloatArray
+from .planar import (
+    RemapMaps,
+    apply_shades,
+    copy_where,
+    planes_f32,
+    put,
+    smoothstep,
+    span,
+    take,
+    take_all,
+)
+from .shadows import (
+    SUN_PENUMBRA,
+    convex_hull_2d,
+    footprint,
+    lit_macro,
+    outline_points_ned,
+    sphere_shadow,
+)
 from .shapes import ray_target_ned
+from .tiles import FrameBuffers, GroundHits, TileLayout
 from .world import (
     DETAIL_LEVELS,
     Ball,
     Box,
-    BoxTarget,
-    Cylinder,
-    Ground,
     GroundTextures,
     SolidTarget,
-    Sphere,
-    Sun,
     Target,
-    Tree,
     World,
     ground_textures,
     sky_textures,
 )
 
-_REMAP_COLS = 1024  # cv2.remap wants both map dimensions below SHRT_MAX
 _T_FAR_M = 1000.0  # ground beyond this range is drawn as horizon haze
-_SUN_PENUMBRA = 2.0 * math.tan(math.radians(0.27))  # penumbra width per metre of shadow ray
 _NOISE_BANK = 1 << 20
 _BALL_SPECULAR = 0.08
 _SPECULAR_EXPONENT = 30
@@ -81,410 +96,6 @@ _SUB = 4  # rays per pixel side for the non-spherical targets
 _SUB_OFF = (np.arange(_SUB) + 0.5) / _SUB - 0.5
 _SUB_U = np.tile(_SUB_OFF, _SUB)
 _SUB_V = np.repeat(_SUB_OFF, _SUB)
-
-
-def _remap_flat(src: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
-    """Bilinear samples of ``src`` at (x, y) (OpenCV pixel-centre coordinates), shape (N, C)."""
-    n = x.shape[0]
-    channels = src.shape[2] if src.ndim == 3 else 1
-    if n == 0:
-        return np.zeros((0, channels), src.dtype)
-    rows = -(-n // _REMAP_COLS)
-    pad = rows * _REMAP_COLS - n
-    if pad:
-        x = np.concatenate([x, np.zeros(pad, np.float32)])
-        y = np.concatenate([y, np.zeros(pad, np.float32)])
-    out = cv2.remap(
-        src,
-        x.reshape(rows, _REMAP_COLS),
-        y.reshape(rows, _REMAP_COLS),
-        cv2.INTER_LINEAR,
-        borderMode=border,
-    )
-    return out.reshape(rows * _REMAP_COLS, channels)[:n]
-
-
-class _Maps:
-    """Reusable float32 ``cv2.remap`` maps for a flat list of points.
-
-    ``x, y = maps.coords(n)`` are views the caller writes the points' coordinates into
-    (in place, so no padding copy); ``maps.sample(src, border)`` then returns the
-    bilinear samples (n, C) of those points. The maps' tail past ``n`` holds stale but
-    finite coordinates whose samples are dropped. Each remapped point depends on its own
-    coordinates only, so the samples equal :func:`_remap_flat`'s.
-    """
-
-    def __init__(self) -> None:
-        self._x = np.zeros(_REMAP_COLS, np.float32)
-        self._y = np.zeros(_REMAP_COLS, np.float32)
-        self._n = 0
-
-    def coords(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        size = max(-(-n // _REMAP_COLS), 1) * _REMAP_COLS
-        if self._x.size < size:
-            self._x = np.zeros(size, np.float32)
-            self._y = np.zeros(size, np.float32)
-        self._n = n
-        return self._x[:n], self._y[:n]
-
-    def sample(self, src: np.ndarray, border: int) -> np.ndarray:
-        n = self._n
-        channels = src.shape[2] if src.ndim == 3 else 1
-        if n == 0:
-            return np.zeros((0, channels), src.dtype)
-        rows = -(-n // _REMAP_COLS)
-        size = rows * _REMAP_COLS
-        out = cv2.remap(
-            src,
-            self._x[:size].reshape(rows, _REMAP_COLS),
-            self._y[:size].reshape(rows, _REMAP_COLS),
-            cv2.INTER_LINEAR,
-            borderMode=border,
-        )
-        return out.reshape(size, channels)[:n]
-
-
-def _planes_f32(samples: np.ndarray) -> np.ndarray:
-    """(n, C) uint8 samples as (C, n) float32 planes, C-contiguous (the values exactly):
-    ``cv2.transpose`` of the bytes, then one conversion (cv2.split and C conversions
-    cost several times more)."""
-    if samples.shape[1] == 1:
-        return samples[:, 0].astype(np.float32)[None, :]
-    return cv2.transpose(samples).astype(np.float32)
-
-
-def _span(mask: np.ndarray) -> tuple[int, int]:
-    """``(first, last + 1)`` of the True entries of a 1-D bool array, (0, 0) if none."""
-    i0 = int(mask.argmax())
-    if not mask[i0]:
-        return 0, 0
-    return i0, mask.shape[0] - int(mask[::-1].argmax())
-
-
-def _copy_where(dst: np.ndarray, src: np.ndarray, mask: np.ndarray) -> None:
-    """``dst[..., mask] = src[..., mask]`` for planar rows; the part of the span past the
-    mask's last False entry is copied whole (the ground below the horizon band)."""
-    rest = mask[::-1].argmin()
-    j = mask.shape[0] - int(rest) if not mask[-1 - int(rest)] else 0
-    if j:
-        if dst.ndim == 1:
-            np.putmask(dst[:j], mask[:j], src[:j])
-        else:
-            for c in range(dst.shape[0]):
-                np.putmask(dst[c, :j], mask[:j], src[c, :j])
-    dst[..., j:] = src[..., j:]
-
-
-def _apply_shades(
-    lit: np.ndarray,
-    ball_shades: list[tuple[np.ndarray, np.ndarray]],
-    target_shades: list[tuple[np.ndarray, np.ndarray]],
-) -> None:
-    """``lit *= sunlit``, sunlit the balls' sunlit fractions multiplied in order (from 1),
-    times the targets' likewise: over the span of the shaded points only (elsewhere the
-    factor is exactly 1)."""
-    locs = [loc for loc, _ in ball_shades + target_shades]
-    lo = min(int(loc[0]) for loc in locs)
-    hi = max(int(loc[-1]) for loc in locs) + 1
-    products = []
-    for shades in (ball_shades, target_shades):
-        if shades:
-            sunlit = np.ones(hi - lo, np.float32)
-            for loc, frac in shades:
-                sunlit[loc - lo] *= frac
-            products.append(sunlit)
-    if len(products) == 2:
-        products[0] *= products[1]
-    lit[lo:hi] *= products[0]
-
-
-def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
-    t = np.clip((x - e0) * (1.0 / (e1 - e0)), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
-
-
-# Per-pixel data is planar, (channels, pixels): numpy gathers and scatters along the last
-# axis of such arrays are several times faster than row gathers of (pixels, channels).
-def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    return a.take(idx, axis=-1)  # the method: np.take's Python wrapper costs as much
-
-
-def _take_all(idx: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-    """:func:`_take` of several arrays at the same indices."""
-    return tuple(_take(a, idx) for a in arrays)
-
-
-def _put(dst: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
-    for c in range(dst.shape[0]):
-        dst[c, idx] = values[c]
-
-
-class _Layout:
-    """Pixels of one camera in tile-major order, with per-tile bounding cones."""
-
-    def __init__(self, camera: CameraModel, tile_px: int, fisheye_fov_deg: float) -> None:
-        h, w = camera.height, camera.width
-        ts = tile_px
-        ty, tx = -(-h // ts), -(-w // ts)
-        hp, wp = ty * ts, tx * ts
-        self.width, self.height = w, h
-        self.tile_px, self.tiles_y, self.tiles_x = ts, ty, tx
-        self.t2 = ts * ts
-
-        bear = np.asarray(camera.bearing_map_cam, dtype=np.float64)
-        valid = np.isfinite(bear[..., 0])
-        if isinstance(camera, Fisheye):
-            with np.errstate(invalid="ignore"):
-                valid &= bear[..., 0] >= math.cos(math.radians(fisheye_fov_deg / 2.0)) - 1e-12
-        pix = np.asarray(camera.pixel_size_map_rad, dtype=np.float64)
-        fallback = float(np.median(pix[valid])) if valid.any() else 1e-2
-        bear_p = np.zeros((hp, wp, 3))
-        bear_p[..., 0] = 1.0
-        bear_p[:h, :w][valid] = bear[valid]
-        valid_p = np.zeros((hp, wp), bool)
-        valid_p[:h, :w] = valid
-        pix_p = np.full((hp, wp), fallback)
-        pix_p[:h, :w] = np.where(valid & (pix > 0), pix, fallback)
-
-        bear_t = self._to_tiles(bear_p)  # (N, 3)
-        self.bearing_cam = np.ascontiguousarray(bear_t.T, dtype=np.float32)  # (3, N)
-        self.valid = self._to_tiles(valid_p)
-        self.pix_rad = self._to_tiles(pix_p).astype(np.float32)
-        self.n = self.valid.shape[0]
-
-        nt = ty * tx
-        bt = bear_t.reshape(nt, self.t2, 3)
-        vt = self.valid.reshape(nt, self.t2)
-        pt = self.pix_rad.reshape(nt, self.t2)
-        centre = np.where(vt[..., None], bt, 0.0).sum(axis=1)
-        norm = np.linalg.norm(centre, axis=1)
-        keep = (norm > 1e-9) & vt.any(axis=1)
-        centre = centre[keep] / norm[keep, None]
-        cosang = np.einsum("tkc,tc->tk", bt[keep], centre)
-        ang = np.arccos(np.clip(cosang, -1.0, 1.0)) + 1.5 * pt[keep]
-        radius = np.where(vt[keep], ang, 0.0).max(axis=1)
-        self.tile_ids = np.nonzero(keep)[0]
-        self.tile_centre_cam = centre  # (T, 3)
-        self.tile_cos = np.cos(radius)
-        self.tile_sin = np.sin(radius)
-        self._tile_cones = np.empty((self.tile_ids.size, 5))
-        self._tile_cones[:, 3] = -self.tile_cos
-        self._tile_cones[:, 4] = self.tile_sin
-        self._ar = np.arange(self.t2)
-        # Invalid pixels of the image (the padding past its edges is cropped away anyway).
-        in_image = np.zeros((hp, wp), bool)
-        in_image[:h, :w] = True
-        self.invalid_idx = np.nonzero(self._to_tiles(in_image) & ~self.valid)[0]
-        self._camera = camera
-        self._pixel_axes: tuple[np.ndarray, np.ndarray] | None = None
-        self._pixel_rc: np.ndarray | None = None
-
-    def tile_cones(self, R_ned_from_cam: FloatArray) -> np.ndarray:
-        """(T, 5) per tile: its cone's axis in NED, ``-cos r``, ``sin r`` (r its radius):
-        dotted with ``(u, cos ρ, sin ρ)`` it is ``u·axis - cos(r + ρ)``, which is >= 0
-        where the tile's cone meets the cone of axis ``u`` and radius ρ."""
-        cones = self._tile_cones.copy()
-        np.matmul(self.tile_centre_cam, R_ned_from_cam.T, out=cones[:, :3])
-        return cones
-
-    def pixel_axes_cam(self) -> tuple[np.ndarray, np.ndarray]:
-        """(3, N) float32 bearing change across each pixel along u and along v (camera
-        FRD): a ray at ``(u + su, v + sv)`` is about ``b + su·du + sv·dv`` (su, sv in
-        [-½, ½]). Built on first use (only worlds with non-spherical targets need it)."""
-        if self._pixel_axes is None:
-            cam = self._camera
-            u = np.arange(cam.width, dtype=np.float64) + 0.5
-            v = np.arange(cam.height, dtype=np.float64) + 0.5
-            uu, vv = np.meshgrid(u, v)
-
-            def diff(du: float, dv: float) -> np.ndarray:
-                a = cam.bearing_cam_from_pixel(np.stack([uu - du, vv - dv], axis=-1))
-                b = cam.bearing_cam_from_pixel(np.stack([uu + du, vv + dv], axis=-1))
-                d = np.where(np.isfinite(a) & np.isfinite(b), b - a, 0.0)
-                hp, wp = self.tiles_y * self.tile_px, self.tiles_x * self.tile_px
-                out = np.zeros((hp, wp, 3))
-                out[: cam.height, : cam.width] = d
-                return np.ascontiguousarray(self._to_tiles(out).T, dtype=np.float32)
-
-            self._pixel_axes = (diff(0.5, 0.0), diff(0.0, 0.5))
-        return self._pixel_axes
-
-    def pixel_rc(self) -> np.ndarray:
-        """Row and column (2, N) int32 of each tile-major pixel in the padded image."""
-        if self._pixel_rc is None:
-            hp, wp = self.tiles_y * self.tile_px, self.tiles_x * self.tile_px
-            rr, cc = np.mgrid[0:hp, 0:wp].astype(np.int32)
-            self._pixel_rc = np.stack([self._to_tiles(rr), self._to_tiles(cc)])
-        return self._pixel_rc
-
-    def _to_tiles(self, a: np.ndarray) -> np.ndarray:
-        ts = self.tile_px
-        rest = a.shape[2:]
-        t = a.reshape(self.tiles_y, ts, self.tiles_x, ts, *rest).swapaxes(1, 2)
-        return np.ascontiguousarray(t).reshape(self.tiles_y * self.tiles_x * ts * ts, *rest)
-
-    def to_image(self, planar: np.ndarray) -> np.ndarray:
-        """(C, N) tile-major planar data → (H, W, C) image (or (H, W) for C = 1 / 1-D)."""
-        ts = self.tile_px
-        data = planar if planar.ndim == 2 else planar[None, :]
-        c = data.shape[0]
-        t = data.reshape(c, self.tiles_y, self.tiles_x, ts, ts).transpose(1, 3, 2, 4, 0)
-        img = t.reshape(self.tiles_y * ts, self.tiles_x * ts, c)[: self.height, : self.width]
-        img = np.ascontiguousarray(img)
-        return img if planar.ndim == 2 else img[..., 0]
-
-    def to_bgr_image(self, rgb: np.ndarray) -> np.ndarray:
-        """(3, N) uint8 planar RGB → (H, W, 3) BGR image (:meth:`to_image` of the
-        channels reversed): interleave with ``cv2.merge``, then move whole tile rows."""
-        ts = self.tile_px
-        bgr = cv2.merge([rgb[2], rgb[1], rgb[0]])
-        t = bgr.reshape(self.tiles_y, self.tiles_x, ts, ts, 3).transpose(0, 2, 1, 3, 4)
-        img = t.reshape(self.tiles_y * ts, self.tiles_x * ts, 3)[: self.height, : self.width]
-        return np.ascontiguousarray(img)
-
-    def pixels_of_tiles(self, kept_tiles: np.ndarray) -> np.ndarray:
-        tiles = self.tile_ids[kept_tiles]
-        return (tiles[:, None] * self.t2 + self._ar[None, :]).ravel()
-
-
-#: The ground span's first pixel, end, and its points' north, east and footprint (m).
-_GroundHits = tuple[int, int, np.ndarray, np.ndarray, np.ndarray]
-
-
-@dataclass
-class _Frame:
-    """Per-frame state: pose, rotated bearings, the colour and depth buffers."""
-
-    origin: FloatArray  # camera position, NED m
-    B: np.ndarray  # (3, N) float32 bearings in NED
-    tile_cones: FloatArray  # (T, 5) tile cones in NED (:meth:`_Layout.tile_cones`)
-    colour: np.ndarray  # (3, N) float32 linear RGB
-    depth: np.ndarray  # (N,) float32 range along the ray, m
-    ground: np.ndarray  # (N,) bool: ray meets the ground within _T_FAR_M
-    R_ned_from_cam: FloatArray | None = None
-    ground_t: np.ndarray | None = None  # (N,) float32 ground range where the ground was drawn
-
-
-# --------------------------------------------------------------------------------------
-# Shadow coverage at ground points (n, e): fraction of the sun hidden by one caster.
-# ``foot`` is the ground footprint (m) used as the minimum edge width (anti-aliasing).
-# --------------------------------------------------------------------------------------
-def _sphere_shadow(
-    n: np.ndarray, e: np.ndarray, foot: np.ndarray, centre: FloatArray, radius: float, L: FloatArray
-) -> np.ndarray:
-    vn, ve, vd = centre[0] - n, centre[1] - e, float(centre[2])
-    s = vn * L[0] + ve * L[1] + vd * L[2]  # along the ray towards the sun
-    perp = np.sqrt(np.maximum(vn * vn + ve * ve + vd * vd - s * s, 0.0))
-    width = np.maximum(np.maximum(foot, s * _SUN_PENUMBRA), 1e-6)
-    cov = np.clip((radius - perp) / width + 0.5, 0.0, 1.0)
-    return np.where(s > 0, cov, 0.0)
-
-
-def _cylinder_shadow(
-    n: np.ndarray, e: np.ndarray, foot: np.ndarray, c: Cylinder, L: FloatArray
-) -> np.ndarray:
-    lh2 = max(float(L[0] ** 2 + L[1] ** 2), 1e-12)
-    dn, de = c.base_ne_m[0] - n, c.base_ne_m[1] - e
-    s = (dn * L[0] + de * L[1]) / lh2
-    perp = np.hypot(dn - s * L[0], de - s * L[1])
-    rise = -s * L[2]  # height of the shadow ray where it passes the axis
-    width = np.maximum(np.maximum(foot, s * _SUN_PENUMBRA), 1e-6)
-    cov = np.clip((c.radius_m - perp) / width + 0.5, 0.0, 1.0)
-    return np.where((s > 0) & (rise <= c.height_m), cov, 0.0)
-
-
-def _box_shadow(n: np.ndarray, e: np.ndarray, box: Box, L: FloatArray) -> np.ndarray:
-    lo, hi = np.asarray(box.min_ned_m)[:, None], np.asarray(box.max_ned_m)[:, None]
-    o = np.stack([n, e, np.full_like(n, -1e-3)])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = (1.0 / L)[:, None]
-        t1 = (lo - o) * inv
-        t2 = (hi - o) * inv
-    tnear = np.fmin(t1, t2).max(axis=0)
-    tfar = np.fmax(t1, t2).min(axis=0)
-    return ((tfar >= np.maximum(tnear, 0.0)) & (tfar > 0)).astype(np.float64)
-
-
-def _footprint(centre: FloatArray, radius: float, L: FloatArray) -> tuple[FloatArray, float]:
-    """Ground circle holding the shadow of a bounding sphere (projected along the sun)."""
-    g = np.asarray(centre, np.float64) - (centre[2] / L[2]) * L
-    return g, radius / max(-float(L[2]), 0.05) + 0.05
-
-
-@lru_cache(maxsize=4)
-def _lit_macro(
-    ground: Ground,
-    sun: Sun,
-    trees: tuple[Tree, ...],
-    posts: tuple[Cylinder, ...],
-    buildings: tuple[Box, ...],
-) -> tuple[np.ndarray, np.ndarray]:
-    """Macro texture levels with the static clutter's shadows baked into channel 3.
-
-    The clutter does not move, so neither do its shadows: channel 3 holds the sunlit
-    fraction (× 255) of each texel, and only the balls' shadows are cast per frame.
-    """
-    tex = ground_textures(ground)
-    m0 = tex.macro_levels[0]
-    h, w = m0.shape[:2]
-    texel = tex.macro_texels_m[0]
-    on, oe = tex.macro_origin_ne_m
-    L = sun.direction_ned
-    lit = np.ones((h, w), np.float64)
-
-    def window(
-        centre: FloatArray, radius: float
-    ) -> tuple[slice, slice, np.ndarray, np.ndarray] | None:
-        g, rg = _footprint(centre, radius, L)
-        x0, x1 = int((g[1] - rg - oe) / texel), int((g[1] + rg - oe) / texel) + 2
-        y0, y1 = int((on - g[0] - rg) / texel), int((on - g[0] + rg) / texel) + 2
-        x0, x1, y0, y1 = max(x0, 0), min(x1, w), max(y0, 0), min(y1, h)
-        if x0 >= x1 or y0 >= y1:
-            return None
-        ee = oe + (np.arange(x0, x1) + 0.5) * texel
-        nn = on - (np.arange(y0, y1) + 0.5) * texel
-        n_grid, e_grid = np.meshgrid(nn, ee, indexing="ij")
-        return slice(y0, y1), slice(x0, x1), n_grid, e_grid
-
-    foot = texel
-    for tree in trees:
-        casters: list[tuple[str, object]] = [("cyl", tree.trunk)] + [
-            ("sph", s) for s in tree.canopy
-        ]
-        for kind, obj in casters:
-            if kind == "cyl":
-                assert isinstance(obj, Cylinder)
-                centre = np.array([obj.base_ne_m[0], obj.base_ne_m[1], -obj.height_m / 2.0])
-                win = window(centre, math.hypot(obj.radius_m, obj.height_m / 2.0))
-                if win is not None:
-                    ys, xs, nn, ee = win
-                    lit[ys, xs] *= 1.0 - _cylinder_shadow(nn, ee, np.full_like(nn, foot), obj, L)
-            else:
-                assert isinstance(obj, Sphere)
-                c = np.asarray(obj.centre_ned_m, np.float64)
-                win = window(c, obj.radius_m)
-                if win is not None:
-                    ys, xs, nn, ee = win
-                    lit[ys, xs] *= 1.0 - _sphere_shadow(
-                        nn, ee, np.full_like(nn, foot), c, obj.radius_m, L
-                    )
-    for post in posts:
-        centre = np.array([post.base_ne_m[0], post.base_ne_m[1], -post.height_m / 2.0])
-        win = window(centre, math.hypot(post.radius_m, post.height_m / 2.0))
-        if win is not None:
-            ys, xs, nn, ee = win
-            lit[ys, xs] *= 1.0 - _cylinder_shadow(nn, ee, np.full_like(nn, foot), post, L)
-    for box in buildings:
-        lo, hi = np.asarray(box.min_ned_m), np.asarray(box.max_ned_m)
-        win = window((lo + hi) / 2.0, float(np.linalg.norm(hi - lo) / 2.0))
-        if win is not None:
-            ys, xs, nn, ee = win
-            lit[ys, xs] *= 1.0 - _box_shadow(nn.ravel(), ee.ravel(), box, L).reshape(nn.shape)
-    level0 = np.dstack([m0, np.clip(lit * 255.0 + 0.5, 0, 255).astype(np.uint8)])
-    blurred = cv2.GaussianBlur(level0, (0, 0), 1.6)
-    f = round(tex.macro_texels_m[1] / texel)
-    level1 = cv2.resize(blurred, (w // f, h // f), interpolation=cv2.INTER_AREA)
-    return level0, level1
 
 
 class Renderer:
@@ -505,9 +116,9 @@ class Renderer:
     ) -> None:
         self.world = world
         self.camera = camera
-        self.layout = _Layout(camera, tile_px, fisheye_fov_deg)
+        self.layout = TileLayout(camera, tile_px, fisheye_fov_deg)
         self.tex: GroundTextures = ground_textures(world.ground)
-        self.macro = _lit_macro(world.ground, world.sun, world.trees, world.posts, world.buildings)
+        self.macro = lit_macro(world.ground, world.sun, world.trees, world.posts, world.buildings)
         self.sky_tex = sky_textures(world.sky)
         self._L = world.sun.direction_ned
         self._sin_sun = -float(self._L[2])
@@ -549,8 +160,8 @@ class Renderer:
         self._half_pix_max = 0.5 * float(self.layout.pix_rad.max())
 
         # Constants and buffers of the ground and the sky.
-        self._maps = _Maps()
-        self._maps_far = _Maps()
+        self._maps = RemapMaps()
+        self._maps_far = RemapMaps()
         self._L32 = self._L.astype(np.float32)
         offs = self.tex.detail_offsets_px - 0.5
         # Per mip level k (the pixel's lower level, then k + 1): texel scale and atlas
@@ -692,7 +303,7 @@ class Renderer:
         lay = self.layout
         origin = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
         R = np.asarray(R_ned_from_body, dtype=np.float64) @ self.camera.R_body_from_cam
-        fr = _Frame(
+        fr = FrameBuffers(
             origin=origin,
             B=R.astype(np.float32) @ lay.bearing_cam,
             tile_cones=lay.tile_cones(R),
@@ -730,7 +341,7 @@ class Renderer:
             ground = lay.valid & (B[2] > height / _T_FAR_M)
         else:
             ground = np.zeros(lay.n, bool)
-        fr = _Frame(
+        fr = FrameBuffers(
             origin=origin,
             B=B,
             tile_cones=lay.tile_cones(R),
@@ -774,7 +385,7 @@ class Renderer:
     # ---------------------------------------------------------------------------------
     # Culling
     # ---------------------------------------------------------------------------------
-    def _tiles_hit(self, fr: _Frame, centres: FloatArray, radii: FloatArray) -> np.ndarray:
+    def _tiles_hit(self, fr: FrameBuffers, centres: FloatArray, radii: FloatArray) -> np.ndarray:
         """(T, K) bool: tile cone meets the bounding cone of sphere k (NED centre, radius)."""
         v = np.asarray(centres, np.float64).reshape(-1, 3) - fr.origin
         dist = np.linalg.norm(v, axis=1)
@@ -804,7 +415,7 @@ class Renderer:
         return pix, np.repeat(k, t2)
 
     def _sphere_pairs(
-        self, fr: _Frame, hit: np.ndarray, centres: FloatArray, radii: FloatArray
+        self, fr: FrameBuffers, hit: np.ndarray, centres: FloatArray, radii: FloatArray
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_pairs` of ``hit`` (the spheres' tiles, :meth:`_tiles_hit`), less the pixels whose bearing is farther
         from a sphere's centre than its angular radius + half the largest pixel + 1 mrad
@@ -853,7 +464,7 @@ class Renderer:
     # Ground and sky
     # ---------------------------------------------------------------------------------
     def _ground_hits(
-        self, fr: _Frame, g0: int, g1: int
+        self, fr: FrameBuffers, g0: int, g1: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Range, north, east and footprint (all float32, metres) of the pixels ``g0:g1``
         (the span of the ground pixels). Pixels of the span that are not ground (the
@@ -901,8 +512,8 @@ class Renderer:
             np.multiply(y0, scale, out=y)
             y += cv2.LUT(k, oy_lut).reshape(-1)
             levels.append(self._maps.sample(tex.detail_atlas, cv2.BORDER_REPLICATE))
-        a = _planes_f32(levels[0])
-        b = _planes_f32(levels[1])
+        a = planes_f32(levels[0])
+        b = planes_f32(levels[1])
         b -= a
         b *= w
         a += b
@@ -926,7 +537,7 @@ class Renderer:
         my0 -= 0.5
         far = foot_m > t0
         far &= ground
-        f0, f1 = _span(far)
+        f0, f1 = span(far)
         if f0 < f1:
             # The coarse level where the footprint outgrows the fine texel: blended over
             # the span of those points (the others get weight 0: exactly unchanged).
@@ -938,9 +549,9 @@ class Renderer:
             np.add(my0[f0:f1], 0.5, out=y1)
             y1 *= r
             y1 -= 0.5
-        macro = _planes_f32(maps.sample(self.macro[0], cv2.BORDER_REPLICATE))
+        macro = planes_f32(maps.sample(self.macro[0], cv2.BORDER_REPLICATE))
         if f0 < f1:
-            m1 = _planes_f32(self._maps_far.sample(self.macro[1], cv2.BORDER_REPLICATE))
+            m1 = planes_f32(self._maps_far.sample(self.macro[1], cv2.BORDER_REPLICATE))
             wm = foot_m[f0:f1] - t0
             wm *= 1.0 / (3.0 * t0)
             np.clip(wm, 0.0, 1.0, out=wm)
@@ -963,10 +574,10 @@ class Renderer:
         return albedo, lit
 
     def _ground_under(
-        self, fr: _Frame, feet: list[tuple[FloatArray, float]]
+        self, fr: FrameBuffers, feet: list[tuple[FloatArray, float]]
     ) -> Iterator[tuple[int, np.ndarray]]:
         """``(k, pixels)`` for each shading object ``k`` whose shadow footprint ``feet[k]``
-        (its ground point and reach, m: :func:`_footprint`) falls on tiles with ground
+        (its ground point and reach, m: :func:`footprint`) falls on tiles with ground
         pixels: those pixels (flat indices, ascending). Objects shading no ground pixel are
         skipped."""
         hit = self._tiles_hit(fr, np.array([g for g, _ in feet]), np.array([r for _, r in feet]))
@@ -975,12 +586,12 @@ class Renderer:
             if tiles.size == 0:
                 continue
             idx = self.layout.pixels_of_tiles(tiles)
-            idx = _take(idx, np.nonzero(_take(fr.ground, idx))[0])
+            idx = take(idx, np.nonzero(take(fr.ground, idx))[0])
             if idx.size:
                 yield k, idx
 
     def _ball_shadows(
-        self, fr: _Frame, balls: list[tuple[FloatArray, Ball]], hits: _GroundHits
+        self, fr: FrameBuffers, balls: list[tuple[FloatArray, Ball]], hits: GroundHits
     ) -> list[tuple[np.ndarray, np.ndarray]]:
         """Sunlit fraction left by each ball's shadow on the ground span, for the balls
         that shade a ground pixel: ``(loc, fraction)``, ``loc`` the pixels (ascending, from
@@ -989,12 +600,12 @@ class Renderer:
         if not balls:
             return shades
         g0, _, n_all, e_all, foot_all = hits
-        feet = [_footprint(c, b.radius_m, self._L) for c, b in balls]
+        feet = [footprint(c, b.radius_m, self._L) for c, b in balls]
         for k, idx in self._ground_under(fr, feet):
             centre, ball = balls[k]
             loc = idx - g0
-            n, e, foot = _take(n_all, loc), _take(e_all, loc), _take(foot_all, loc)
-            cover = _sphere_shadow(
+            n, e, foot = take(n_all, loc), take(e_all, loc), take(foot_all, loc)
+            cover = sphere_shadow(
                 n.astype(np.float64), e.astype(np.float64), foot, centre, ball.radius_m, self._L
             )
             shades.append((loc, (1.0 - cover).astype(np.float32)))
@@ -1002,14 +613,14 @@ class Renderer:
 
     def _draw_ground(
         self,
-        fr: _Frame,
+        fr: FrameBuffers,
         balls: list[tuple[FloatArray, Ball]],
         targets: list[tuple[FloatArray, SolidTarget]],
         t_s: float,
     ) -> None:
         """The ground, over the span of the ground pixels (tile-major order puts them
         nearly contiguous: below the horizon band), with the objects' shadows."""
-        g0, g1 = _span(fr.ground)
+        g0, g1 = span(fr.ground)
         if g0 >= g1:
             return
         gm = fr.ground[g0:g1]
@@ -1020,7 +631,7 @@ class Renderer:
         col, lit = self._ground_albedo(n, e, foot, gm)
         sun = self.world.sun
         if ball_shades or target_shades:
-            _apply_shades(lit, ball_shades, target_shades)
+            apply_shades(lit, ball_shades, target_shades)
         lit *= np.float32(sun.irradiance * self._sin_sun)
         lit += np.float32(sun.ambient)
         col *= lit
@@ -1030,16 +641,16 @@ class Renderer:
         mix = self._haze_rgb - col
         mix *= haze
         col += mix
-        _copy_where(fr.colour[:, g0:g1], col, gm)
-        _copy_where(fr.depth[g0:g1], t, gm)
+        copy_where(fr.colour[:, g0:g1], col, gm)
+        copy_where(fr.depth[g0:g1], t, gm)
         if self.world.targets:
             fr.ground_t = np.full(self.layout.n, np.nan, np.float32)
-            _copy_where(fr.ground_t[g0:g1], t, gm)
+            copy_where(fr.ground_t[g0:g1], t, gm)
 
-    def _draw_sky(self, fr: _Frame, sky_mask: np.ndarray) -> None:
+    def _draw_sky(self, fr: FrameBuffers, sky_mask: np.ndarray) -> None:
         """The sky, written over the span of the sky pixels (the ground drawn after it
         overwrites the ground pixels of the horizon band)."""
-        s0, s1 = _span(sky_mask)
+        s0, s1 = span(sky_mask)
         if s0 >= s1:
             return
         sky, sun = self.world.sky, self.world.sun
@@ -1069,7 +680,7 @@ class Renderer:
             v -= wrap
             v -= 0.5
         c = cv2.transpose(self._maps.sample(self.sky_tex.cloud, cv2.BORDER_WRAP))  # (2, M)
-        dens = _smoothstep(0.03, 0.2, upc)
+        dens = smoothstep(0.03, 0.2, upc)
         dens *= c[0]
         cloud = self._cloud_rgb * c[1]
         cloud -= col
@@ -1086,36 +697,36 @@ class Renderer:
         si = si.compress(sky_mask.take(si))
         if si.size < 2:
             si = np.nonzero(sky_mask)[0]
-        cosg = self._L32 @ _take(B, si)
+        cosg = self._L32 @ take(B, si)
         near = np.nonzero(cosg > math.cos(0.45))[0]
         if near.size:
-            gamma = np.arccos(np.clip(_take(cosg, near), -1.0, 1.0))
+            gamma = np.arccos(np.clip(take(cosg, near), -1.0, 1.0))
             wide = np.maximum(1.0 - gamma * (1.0 / 0.45), 0.0)
             glow = 0.35 * np.exp(gamma * (-1.0 / 0.06)) + 0.15 * wide * wide
             rho = math.radians(sun.angular_radius_deg)
-            pn = _take(si, near)
-            disc = np.clip((rho - gamma) / _take(self.layout.pix_rad, pn) + 0.5, 0.0, 1.0)
+            pn = take(si, near)
+            disc = np.clip((rho - gamma) / take(self.layout.pix_rad, pn) + 0.5, 0.0, 1.0)
             sun_rgb = np.array([1.0, 0.97, 0.9], np.float32)[:, None]
             loc = pn - s0
-            _put(col, loc, _take(col, loc) + sun_rgb * (glow + 2.0 * disc))
+            put(col, loc, take(col, loc) + sun_rgb * (glow + 2.0 * disc))
 
         # Distant hills along the horizon.
         hl = np.nonzero((up < self._hill_top) & sky_mask[s0:s1])[0]
         if hl.size:
-            bh = _take(B[:, s0:s1], hl)
+            bh = take(B[:, s0:s1], hl)
             az = np.arctan2(bh[1], bh[0])
             top = np.interp(az, self.sky_tex.hill_az_rad, self.sky_tex.hill_el_rad).astype(
                 np.float32
             )
-            el = np.arcsin(np.clip(_take(up, hl), -1.0, 1.0))
+            el = np.arcsin(np.clip(take(up, hl), -1.0, 1.0))
             below = top - el
             cover = np.clip(below / self.layout.pix_rad[s0:s1][hl] + 0.5, 0.0, 1.0)
             shade = np.clip(1.0 - below * (1.0 / 0.05), 0.6, 1.0)
             hill = (
                 np.asarray(sky.hill_rgb, np.float32)[:, None] * (0.6 * shade) + 0.4 * self._hor_rgb
             )
-            cur = _take(col, hl)
-            _put(col, hl, cur + (hill - cur) * cover)
+            cur = take(col, hl)
+            put(col, hl, cur + (hill - cur) * cover)
 
     # ---------------------------------------------------------------------------------
     # Objects
@@ -1131,16 +742,16 @@ class Renderer:
         return albedo * irr
 
     def _blend(
-        self, fr: _Frame, idx: np.ndarray, col: np.ndarray, alpha: np.ndarray, t: np.ndarray
+        self, fr: FrameBuffers, idx: np.ndarray, col: np.ndarray, alpha: np.ndarray, t: np.ndarray
     ) -> None:
         """Composite ``col`` over the buffer with coverage ``alpha``; solid pixels set depth."""
-        cur = _take(fr.colour, idx)
+        cur = take(fr.colour, idx)
         cur += (col - cur) * alpha.astype(np.float32)
-        _put(fr.colour, idx, cur)
+        put(fr.colour, idx, cur)
         solid = np.nonzero(alpha >= 0.5)[0]
-        fr.depth[_take(idx, solid)] = _take(t, solid)
+        fr.depth[take(idx, solid)] = take(t, solid)
 
-    def _draw_canopies(self, fr: _Frame, hit: np.ndarray) -> None:
+    def _draw_canopies(self, fr: FrameBuffers, hit: np.ndarray) -> None:
         """All tree canopies in one pass: per pixel the nearest covering sphere wins.
         ``hit`` (T, K): the tiles each canopy may cover (:meth:`_tiles_hit`)."""
         if self._sph_radius.size == 0:
@@ -1148,26 +759,26 @@ class Renderer:
         pix, k = self._sphere_pairs(fr, hit, self._sph_centre, self._sph_radius)
         if pix.size == 0:
             return
-        b = _take(fr.B, pix).astype(np.float64)
-        pw = _take(self.layout.pix_rad, pix)
-        centre = _take(self._sph_centre.T, k)
-        radius = _take(self._sph_radius, k)
+        b = take(fr.B, pix).astype(np.float64)
+        pw = take(self.layout.pix_rad, pix)
+        centre = take(self._sph_centre.T, k)
+        radius = take(self._sph_radius, k)
         alpha, th, tc = _sphere_terms(b, centre, radius, fr.origin, pw)
-        ok = (alpha > 0) & (tc > 0) & (th < _take(fr.depth, pix))
+        ok = (alpha > 0) & (tc > 0) & (th < take(fr.depth, pix))
         sel = np.nonzero(ok)[0]
         if sel.size == 0:
             return
-        pix, k, b, alpha, th = _take_all(sel, pix, k, b, alpha, th)
+        pix, k, b, alpha, th = take_all(sel, pix, k, b, alpha, th)
         key = np.where(alpha >= 0.5, th, 1e9 - alpha)  # solid: nearest; else: most covering
         win = self._resolve(pix, key)
-        pix, k, b, alpha, th = _take_all(win, pix, k, b, alpha, th)
+        pix, k, b, alpha, th = take_all(win, pix, k, b, alpha, th)
         hit = fr.origin[:, None] + th * b
-        normal = (hit - _take(self._sph_centre.T, k)) / _take(self._sph_radius, k)
-        albedo = _take(self._sph_albedo, k)
-        leafy = np.nonzero(_take(self._sph_leafy, k))[0]
+        normal = (hit - take(self._sph_centre.T, k)) / take(self._sph_radius, k)
+        albedo = take(self._sph_albedo, k)
+        leafy = np.nonzero(take(self._sph_leafy, k))[0]
         if leafy.size:
-            hl = _take(hit, leafy)
-            foot = (_take(th, leafy) * _take(self.layout.pix_rad, _take(pix, leafy))).astype(
+            hl = take(hit, leafy)
+            foot = (take(th, leafy) * take(self.layout.pix_rad, take(pix, leafy))).astype(
                 np.float32
             )
             # Leaf clumps: the grass detail, stretched over the crown as a pseudo-3-D
@@ -1177,10 +788,10 @@ class Renderer:
             det = self._sample_detail(pn, pe, foot * np.float32(0.45))
             lum = (det[0] + det[1] + det[2]) * np.float32(1.0 / 384.0)
             lum *= lum
-            _put(albedo, leafy, _take(albedo, leafy) * (lum * lum))
+            put(albedo, leafy, take(albedo, leafy) * (lum * lum))
         self._blend(fr, pix, self._shade(albedo, normal), alpha, th)
 
-    def _draw_cylinders(self, fr: _Frame, hit: np.ndarray) -> None:
+    def _draw_cylinders(self, fr: FrameBuffers, hit: np.ndarray) -> None:
         """Trunks and posts in one pass, anti-aliased across their width. ``hit`` (T, K):
         the tiles each may cover (:meth:`_tiles_hit` of their bounding spheres)."""
         if self._cyl_radius.size == 0:
@@ -1188,17 +799,17 @@ class Renderer:
         pix, k = self._pairs(hit)
         if pix.size == 0:
             return
-        b = _take(fr.B, pix).astype(np.float64)
+        b = take(fr.B, pix).astype(np.float64)
         o = fr.origin
-        base = _take(self._cyl_base, k)
-        radius = _take(self._cyl_radius, k)
+        base = take(self._cyl_base, k)
+        radius = take(self._cyl_radius, k)
         dn, de = o[0] - base[0], o[1] - base[1]
         a = np.maximum(b[0] * b[0] + b[1] * b[1], 1e-12)
         q = b[0] * dn + b[1] * de
         tc = -q / a  # ray parameter (= range, |b| = 1) of the closest approach to the axis
         perp2 = np.maximum(dn * dn + de * de - q * q / a, 0.0)
         alpha = np.clip(
-            (radius - np.sqrt(perp2)) / (_take(self.layout.pix_rad, pix) * np.maximum(tc, 1e-6))
+            (radius - np.sqrt(perp2)) / (take(self.layout.pix_rad, pix) * np.maximum(tc, 1e-6))
             + 0.5,
             0.0,
             1.0,
@@ -1209,16 +820,16 @@ class Renderer:
             (alpha > 0)
             & (tc > 0)
             & (d_hit <= 0.0)
-            & (d_hit >= -_take(self._cyl_height, k))
-            & (th < _take(fr.depth, pix))
+            & (d_hit >= -take(self._cyl_height, k))
+            & (th < take(fr.depth, pix))
         )
         sel = np.nonzero(ok)[0]
         if sel.size == 0:
             return
-        pix, k, b, alpha, th = _take_all(sel, pix, k, b, alpha, th)
+        pix, k, b, alpha, th = take_all(sel, pix, k, b, alpha, th)
         win = self._resolve(pix, np.where(alpha >= 0.5, th, 1e9 - alpha))
-        pix, k, b, alpha, th = _take_all(win, pix, k, b, alpha, th)
-        base = _take(self._cyl_base, k)
+        pix, k, b, alpha, th = take_all(win, pix, k, b, alpha, th)
+        base = take(self._cyl_base, k)
         hn = o[0] + th * b[0] - base[0]
         he = o[1] + th * b[1] - base[1]
         degenerate = np.hypot(hn, he) < 1e-9
@@ -1226,16 +837,16 @@ class Renderer:
         he = np.where(degenerate, -b[1], he)
         norm = np.maximum(np.hypot(hn, he), 1e-12)
         normal = np.stack([hn / norm, he / norm, np.zeros_like(hn)])
-        self._blend(fr, pix, self._shade(_take(self._cyl_albedo, k), normal), alpha, th)
+        self._blend(fr, pix, self._shade(take(self._cyl_albedo, k), normal), alpha, th)
 
-    def _draw_box(self, fr: _Frame, box: Box, hit_tiles: np.ndarray) -> None:
+    def _draw_box(self, fr: FrameBuffers, box: Box, hit_tiles: np.ndarray) -> None:
         """A building; ``hit_tiles`` (T,) the tiles its bounding sphere may cover."""
         lo3, hi3 = np.asarray(box.min_ned_m), np.asarray(box.max_ned_m)
         tiles = np.nonzero(hit_tiles)[0]
         if tiles.size == 0:
             return
         idx = self.layout.pixels_of_tiles(tiles)
-        b = _take(fr.B, idx).astype(np.float64)
+        b = take(fr.B, idx).astype(np.float64)
         o = fr.origin[:, None]
         lo, hi = lo3[:, None], hi3[:, None]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -1245,14 +856,14 @@ class Renderer:
         tn = np.fmin(t1, t2)
         tnear = tn.max(axis=0)
         tfar = np.fmax(t1, t2).min(axis=0)
-        ok = (tfar >= tnear) & (tnear > 0) & (tnear < _take(fr.depth, idx))
+        ok = (tfar >= tnear) & (tnear > 0) & (tnear < take(fr.depth, idx))
         sel = np.nonzero(ok)[0]
         if sel.size == 0:
             return
-        ii = _take(idx, sel)
-        th = _take(tnear, sel)
-        bb = _take(b, sel)
-        axis = _take(tn, sel).argmax(axis=0)
+        ii = take(idx, sel)
+        th = take(tnear, sel)
+        bb = take(b, sel)
+        axis = take(tn, sel).argmax(axis=0)
         cols = np.arange(sel.size)
         normal = np.zeros((3, sel.size))
         normal[axis, cols] = -np.sign(bb[axis, cols])
@@ -1269,11 +880,11 @@ class Renderer:
         )
         albedo = np.where(roof, np.asarray(box.roof_albedo_rgb)[:, None], wall)
         albedo = albedo * (0.9 + 0.1 * np.cos(height * 7.0 + along * 0.8))
-        _put(fr.colour, ii, self._shade(albedo, normal).astype(np.float32))
+        put(fr.colour, ii, self._shade(albedo, normal).astype(np.float32))
         fr.depth[ii] = th
 
     def _draw_ball(
-        self, fr: _Frame, centre: FloatArray, ball: Ball
+        self, fr: FrameBuffers, centre: FloatArray, ball: Ball
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Draw a ball; returns the pixels it touched and their coverage (or None)."""
         hit_tiles = self._tiles_hit(fr, centre[None, :], np.array([ball.radius_m]))
@@ -1281,18 +892,18 @@ class Renderer:
         if tiles.size == 0 or np.linalg.norm(centre - fr.origin) <= ball.radius_m:
             return None
         idx = self.layout.pixels_of_tiles(tiles)
-        b = _take(fr.B, idx).astype(np.float64)
+        b = take(fr.B, idx).astype(np.float64)
         alpha, th, tc = _sphere_terms(
             b,
             centre.reshape(3, 1),
             np.array([ball.radius_m]),
             fr.origin,
-            _take(self.layout.pix_rad, idx),
+            take(self.layout.pix_rad, idx),
         )
-        sel = np.nonzero((alpha > 0) & (tc > 0) & (th < _take(fr.depth, idx)))[0]
+        sel = np.nonzero((alpha > 0) & (tc > 0) & (th < take(fr.depth, idx)))[0]
         if sel.size == 0:
             return None
-        ii, bb, th, alpha = _take(idx, sel), _take(b, sel), _take(th, sel), _take(alpha, sel)
+        ii, bb, th, alpha = take(idx, sel), take(b, sel), take(th, sel), take(alpha, sel)
         normal = (fr.origin[:, None] + th * bb - centre[:, None]) / ball.radius_m
         albedo = np.asarray(ball.albedo_rgb, np.float32)[:, None]
         col = self._shade(albedo, normal)
@@ -1304,7 +915,7 @@ class Renderer:
         return ii, alpha
 
     def _draw_target(
-        self, fr: _Frame, centre: FloatArray, R_ned_from_obj: FloatArray, target: SolidTarget
+        self, fr: FrameBuffers, centre: FloatArray, R_ned_from_obj: FloatArray, target: SolidTarget
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Draw a box, cylinder or disc; returns the pixels it touched and their coverage.
 
@@ -1326,18 +937,18 @@ class Renderer:
         thin = False
         if dist > rb * 1.0001:
             # Only pixels whose bearing is within the bounding cone (plus 1.5 pixels).
-            pix = _take(lay.pix_rad, idx)
-            cos_b = np.clip((v / dist).astype(np.float32) @ _take(fr.B, idx), -1.0, 1.0)
+            pix = take(lay.pix_rad, idx)
+            cos_b = np.clip((v / dist).astype(np.float32) @ take(fr.B, idx), -1.0, 1.0)
             keep = np.nonzero(np.arccos(cos_b) <= math.asin(rb / dist) + 1.5 * pix)[0]
             if keep.size == 0:
                 return None
-            idx = _take(idx, keep)
-            thin = min(target.size_m) / dist < 3.0 * float(_take(pix, keep).max())
-        depth = _take(fr.depth, idx)
+            idx = take(idx, keep)
+            thin = min(target.size_m) / dist < 3.0 * float(take(pix, keep).max())
+        depth = take(fr.depth, idx)
         if fr.ground_t is not None:
             # Where the ground is what the pixel shows, each ray meets it at its own range:
             # test against "above the ground" instead of the pixel centre's ground range.
-            depth = np.where(depth == _take(fr.ground_t, idx), np.float32(np.inf), depth)
+            depth = np.where(depth == take(fr.ground_t, idx), np.float32(np.inf), depth)
         albedo = np.asarray(target.albedo_rgb, np.float32)[:, None]
         o_down = float(fr.origin[2])
 
@@ -1366,50 +977,50 @@ class Renderer:
         if thin:
             edge = np.arange(idx.size)
         else:
-            b = _take(fr.B, idx).astype(np.float64)
+            b = take(fr.B, idx).astype(np.float64)
             t_near, t_far, normal = ray_target_ned(target, centre, R_ned_from_obj, fr.origin, b)
             hit = visible(t_near, t_far, b, depth)
             boundary = self._boundary(idx, hit, normal)
             inner = np.nonzero(hit & ~boundary)[0]
             if inner.size:
-                col = shade(_take(b, inner), _take(normal, inner))
-                parts.append((inner, col, np.ones(inner.size), _take(t_near, inner)))
+                col = shade(take(b, inner), take(normal, inner))
+                parts.append((inner, col, np.ones(inner.size), take(t_near, inner)))
             edge = np.nonzero(boundary)[0]
         if edge.size:
             assert fr.R_ned_from_cam is not None
             du_cam, dv_cam = lay.pixel_axes_cam()
             R = fr.R_ned_from_cam
-            pe = _take(idx, edge)
+            pe = take(idx, edge)
             rays = (
-                _take(fr.B, pe).astype(np.float64)[:, :, None]
-                + (R @ _take(du_cam, pe).astype(np.float64))[:, :, None] * _SUB_U
-                + (R @ _take(dv_cam, pe).astype(np.float64))[:, :, None] * _SUB_V
+                take(fr.B, pe).astype(np.float64)[:, :, None]
+                + (R @ take(du_cam, pe).astype(np.float64))[:, :, None] * _SUB_U
+                + (R @ take(dv_cam, pe).astype(np.float64))[:, :, None] * _SUB_V
             )
             rays /= np.sqrt(np.sum(rays * rays, axis=0))
             s = _SUB * _SUB
             flat = rays.reshape(3, edge.size * s)
             t_near, t_far, normal = ray_target_ned(target, centre, R_ned_from_obj, fr.origin, flat)
-            hit = visible(t_near, t_far, flat, np.repeat(_take(depth, edge), s))
+            hit = visible(t_near, t_far, flat, np.repeat(take(depth, edge), s))
             count = hit.reshape(edge.size, s).sum(axis=1)
             sel = np.nonzero(count > 0)[0]
             if sel.size:
                 hi = np.nonzero(hit)[0]
-                col = shade(_take(flat, hi), _take(normal, hi))
+                col = shade(take(flat, hi), take(normal, hi))
                 owner = hi // s
                 acc = np.stack(
                     [np.bincount(owner, weights=col[c], minlength=edge.size) for c in range(3)]
                 )
-                n_hit = _take(count, sel)
-                colour = (_take(acc, sel) / n_hit).astype(np.float32)
+                n_hit = take(count, sel)
+                colour = (take(acc, sel) / n_hit).astype(np.float32)
                 t_min = np.where(hit, t_near, np.inf).reshape(edge.size, s).min(axis=1)
-                parts.append((_take(edge, sel), colour, n_hit / float(s), _take(t_min, sel)))
+                parts.append((take(edge, sel), colour, n_hit / float(s), take(t_min, sel)))
         if not parts:
             return None
         which = np.concatenate([p[0] for p in parts])
         colour = np.concatenate([p[1] for p in parts], axis=1).astype(np.float32)
         alpha = np.concatenate([p[2] for p in parts])
         t_hit = np.concatenate([p[3] for p in parts])
-        ii = _take(idx, which)
+        ii = take(idx, which)
         self._blend(fr, ii, colour, alpha, t_hit)
         return ii, alpha
 
@@ -1417,7 +1028,7 @@ class Renderer:
         """(M,) bool: pixels ``idx`` whose hit state differs from an 8-neighbour's, or
         whose surface normal does (a face edge). Works on the band of image rows the
         pixels span, plus a margin; columns wrap (the panorama's seam)."""
-        rows, cols = _take(self.layout.pixel_rc(), idx)
+        rows, cols = take(self.layout.pixel_rc(), idx)
         r_off = int(rows.min()) - 1
         h = int(rows.max()) - r_off + 2
         w = self.layout.tiles_x * self.layout.tile_px
@@ -1436,10 +1047,10 @@ class Renderer:
 
     def _target_shadows(
         self,
-        fr: _Frame,
+        fr: FrameBuffers,
         targets: list[tuple[FloatArray, SolidTarget]],
         t_s: float,
-        hits: _GroundHits,
+        hits: GroundHits,
     ) -> list[tuple[np.ndarray, np.ndarray]]:
         """Sunlit fraction left by the non-spherical targets' shadows on the ground span,
         as :meth:`_ball_shadows` gives the balls'.
@@ -1454,22 +1065,22 @@ class Renderer:
         L = self._L
         if L[2] > -1e-3:
             return shades
-        feet = [_footprint(c, tg.bounding_radius_m, L) for c, tg in targets]
+        feet = [footprint(c, tg.bounding_radius_m, L) for c, tg in targets]
         for k, idx in self._ground_under(fr, feet):
             centre, target = targets[k]
-            pts = _outline_points_ned(target, centre, target.R_ned_from_obj(t_s))
+            pts = outline_points_ned(target, centre, target.R_ned_from_obj(t_s))
             ground_pts = pts[:, :2] - (pts[:, 2] / L[2])[:, None] * L[None, :2]
-            hull = _convex_hull_2d(ground_pts)
+            hull = convex_hull_2d(ground_pts)
             loc = idx - g0
-            n, e, foot = _take(n_all, loc), _take(e_all, loc), _take(foot_all, loc)
+            n, e, foot = take(n_all, loc), take(e_all, loc), take(foot_all, loc)
             mid = hull.mean(axis=0)
             reach = float(np.hypot(*(hull - mid).T).max())
             rise = max(-float(centre[2]), 0.0) / -float(L[2])
-            pen = max(rise * _SUN_PENUMBRA, 1e-6)
+            pen = max(rise * SUN_PENUMBRA, 1e-6)
             near = np.nonzero(np.hypot(n - mid[0], e - mid[1]) < reach + foot + pen)[0]
             if near.size == 0:
                 continue
-            loc, n, e, foot = _take_all(near, loc, n, e, foot)
+            loc, n, e, foot = take_all(near, loc, n, e, foot)
             a = hull
             bvec = np.roll(hull, -1, axis=0) - hull
             length = np.maximum(np.hypot(bvec[:, 0], bvec[:, 1]), 1e-12)
@@ -1482,50 +1093,6 @@ class Renderer:
             cover = np.clip(-dmax / width + 0.5, 0.0, 1.0)
             shades.append((loc, (1.0 - cover).astype(np.float32)))
         return shades
-
-
-def _outline_points_ned(
-    target: SolidTarget, centre_ned_m: FloatArray, R_ned_from_obj: FloatArray
-) -> FloatArray:
-    """(K, 3) points whose convex hull is the target (box corners, or the two rims)."""
-    if isinstance(target, BoxTarget):
-        hx, hy, hz = target.half_extent_m
-        pts = np.array(
-            [[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
-        )
-    else:
-        phi = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
-        rim = np.stack([target.radius_m * np.cos(phi), target.radius_m * np.sin(phi)], axis=1)
-        hh = target.height_m / 2.0
-        pts = np.concatenate(
-            [
-                np.column_stack([rim, np.full(len(phi), -hh)]),
-                np.column_stack([rim, np.full(len(phi), hh)]),
-            ]
-        )
-    return np.asarray(centre_ned_m, np.float64) + pts @ np.asarray(R_ned_from_obj).T
-
-
-def _convex_hull_2d(points: FloatArray) -> FloatArray:
-    """Convex hull (H, 2) of 2-D points, counter-clockwise in (x, y) (Andrew's chain)."""
-    pts = np.unique(np.round(np.asarray(points, np.float64), 9), axis=0).astype(np.float64)
-    if len(pts) < 3:
-        return pts
-
-    def cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-        return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
-
-    lower: list[np.ndarray] = []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
-            lower.pop()
-        lower.append(p)
-    upper: list[np.ndarray] = []
-    for p in pts[::-1]:
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
-            upper.pop()
-        upper.append(p)
-    return np.array(lower[:-1] + upper[:-1], dtype=np.float64)
 
 
 def _sphere_terms(

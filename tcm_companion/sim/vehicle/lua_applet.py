@@ -34,7 +34,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from .mock_autopilot import COPTER_MODE_BRAKE, COPTER_MODE_GUIDED, MockAutopilot, MockEvent
+from ...mavlink.tcm_dialect import COPTER_MODE_BRAKE, COPTER_MODE_GUIDED
+from .mock_autopilot import MockAutopilot, MockEvent
 
 APPLET_PATH = Path(__file__).resolve().parents[3] / "tools" / "ardupilot" / "tcm_avoid.lua"
 # param, Parameter and uint32_t_ud, faked once for both hosts (harness.lua loads it too).

@@ -57,11 +57,8 @@ from .mock_types import (
     StatusReceived,
 )
 from .mock_vehicle import BrakingPath, MockVehicle, VehicleTruth
-from .telemetry import COPTER_MODE_BRAKE, COPTER_MODE_GUIDED
 
 __all__ = [
-    "COPTER_MODE_BRAKE",
-    "COPTER_MODE_GUIDED",
     "STREAM_DEFAULT_INTERVAL_US",
     "BrakeStarted",
     "BrakingPath",
@@ -163,7 +160,7 @@ class MockAutopilot:
             return None
         now = self.clock.advance(now_us)
         brake = self.vehicle.start_brake(now, self.config.brake_decel_mps2)
-        self.firmware.mode = COPTER_MODE_BRAKE
+        self.firmware.mode = mav.COPTER_MODE_BRAKE
         self._brake = BrakeStarted(
             now, int(track_id), float(ttc_s), brake.speed_mps, brake.hover_at_us, brake.hover_ned_m
         )

@@ -43,7 +43,7 @@ from .mock_types import (
     PeerSeen,
 )
 from .mock_vehicle import MockVehicle
-from .telemetry import COPTER_MODE_GUIDED, copter_heartbeat
+from .telemetry import copter_heartbeat
 
 #: Messages the mock can stream or send on request, with their default interval (µs;
 #: 0 = not streamed). ArduPilot's defaults with stream rates at 0: only the heartbeat.
@@ -117,7 +117,7 @@ class MockFirmware:
         self.clock = clock
         self.stats = stats
         self.params = initial_params(config)
-        self.mode = COPTER_MODE_GUIDED  # HEARTBEAT.custom_mode
+        self.mode = mav.COPTER_MODE_GUIDED  # HEARTBEAT.custom_mode
         self.peers: dict[tuple[int, int], int] = {}  # (sysid, compid) -> last heartbeat µs
         self.timesync_rtt_us: int | None = None  # round trip of our last answered request
         self._unix_us_at_start = (

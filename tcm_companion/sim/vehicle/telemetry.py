@@ -35,12 +35,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from ...core.frames import FloatArray
 from ...io.tlog import TlogWriter
+from ...mavlink import tcm_dialect
 from ...mavlink.outputs import EARTH_RADIUS_M  # the flat-earth conversion ADSB_VEHICLE uses
 from ..scene.scenarios import VehicleMotion, euler_zyx_rad
-
-# ArduCopter flight modes (HEARTBEAT.custom_mode).
-COPTER_MODE_GUIDED = 4
-COPTER_MODE_BRAKE = 17
 
 
 @dataclass(frozen=True)
@@ -274,7 +271,7 @@ def _encode(
     mav: mavlink2.MAVLink, kind: str, boot_ms: int, v: tuple[float, ...]
 ) -> mavlink2.MAVLink_message:
     if kind == "HEARTBEAT":
-        return copter_heartbeat(mav, COPTER_MODE_GUIDED)
+        return copter_heartbeat(mav, tcm_dialect.COPTER_MODE_GUIDED)
     if kind == "ATTITUDE":
         return mav.attitude_encode(boot_ms, *v)  # roll, pitch, yaw, p, q, r
     if kind == "LOCAL_POSITION_NED":

@@ -1,4 +1,5 @@
-"""SITL: the mock autopilot, a camera rendered from its true state, and the companion.
+"""A SITL flight against the mock autopilot: a camera rendered from its true state, the
+companion, and the flight scored and reported.
 
 Two clocks:
 
@@ -37,7 +38,7 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -47,20 +48,13 @@ from ..config import AppConfig
 from ..core.camera import CameraModel
 from ..core.frames import normalize
 from ..core.pipeline import FrameResult
-from ..flightlog.handle import FlightLog
 from ..io.aio import monotonic_us
+from ..io.detector_model import read_detector_model
 from ..io.transports import Transport, open_transport
 from ..io.truth import match_truth
 from ..logsetup import start_flight_log
-from ..mavlink.endpoint import CompanionEndpoint
-from ..service.daemon import Daemon
-from ..service.endpoint_setup import (
-    MavlinkSettings,
-    make_endpoint,
-    persist,
-    resolve_state_paths,
-)
 from ..service.plumbing import CameraInput, DaemonSummary, NotifierLike, run_length_text
+from ..service.runner import ServiceState, StartLog, open_service, open_service_state
 from ..sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 from ..sim.vehicle.mock_autopilot_run import run_mock_autopilot
 from .virtual import RunTimer, VirtualTimeModel, frame_result_key
@@ -316,44 +310,25 @@ def _sim_camera(
 
 @dataclass
 class _Run:
-    """What either clock's run sets up around the companion: its MAVLink settings, the
-    scorer, the endpoint and the flight log (when asked for), and what the report needs
-    of the run (the mock, the timer, the accuracy floor)."""
+    """What the report needs of a run on either clock: the mock, the timer, the accuracy
+    floor, the scorer, and the service's state (endpoint, flight log)."""
 
     mock: Any
     timer: RunTimer
     min_accuracy: float | None
-    settings: MavlinkSettings
     scorer: _Scorer
-    endpoint: CompanionEndpoint
-    flight_log: FlightLog | None
+    state: ServiceState
 
 
-def _start_run(
-    config: AppConfig,
-    state_dir: str,
-    mock: Any,
-    cameras: list[CameraInput],
-    times_us: tuple[int, int],
-    log_dir: str | None,
-    timer: RunTimer,
-    min_accuracy: float | None,
-    **log_kwargs: Any,
-) -> _Run:
-    """Set up a run: state files in ``state_dir``, the scorer (warm-up from
-    ``times_us[0]``), the endpoint (started at ``times_us[1]``; its warnings logged) and
-    the flight log (``log_kwargs`` to :func:`~tcm_companion.logsetup.start_flight_log`)."""
-    settings = resolve_state_paths(config.mavlink, state_dir)
-    scorer = _Scorer(mock, cameras[0].model, times_us[0])
-    endpoint, warnings = make_endpoint(settings, times_us[1], config.pipeline)
-    for w in warnings:
-        log.warning("%s", w)
-    flight_log = None
-    if log_dir is not None and config.logging.enabled:
-        flight_log = start_flight_log(
-            config, Path(log_dir), cameras, dict(endpoint.params.values), **log_kwargs
-        )
-    return _Run(mock, timer, min_accuracy, settings, scorer, endpoint, flight_log)
+def _start_log(
+    config: AppConfig, log_dir: str | None, cameras: list[CameraInput], **log_kwargs: Any
+) -> StartLog | None:
+    """The service's ``start_log`` for ``log_dir`` (None: no flight log), ``log_kwargs`` to
+    :func:`~tcm_companion.logsetup.start_flight_log`."""
+    if log_dir is None or not config.logging.enabled:
+        return None
+    directory = Path(log_dir)
+    return lambda params: start_flight_log(config, directory, cameras, params, **log_kwargs)
 
 
 def _file_sha256(paths: Sequence[Path]) -> str:
@@ -374,7 +349,8 @@ def _report(
     planned_s: float | None = None,
     stopped_early: bool = False,
 ) -> SitlReport:
-    mock, scorer, flight_log, min_accuracy = run.mock, run.scorer, run.flight_log, run.min_accuracy
+    mock, scorer, min_accuracy = run.mock, run.scorer, run.min_accuracy
+    flight_log = run.state.flight_log
     # Real time only: the daemon and the mock share this process's event loop. When the
     # machine stalls the whole loop (a loaded CI runner), a status can reach the mock over
     # a second after capture, and the mock rightly calls it stale. That is the machine,
@@ -441,7 +417,7 @@ def _report(
         stale_excused=excused,
         log=log_stats,
         log_sha256=log_sha,
-        statustexts=run.endpoint.statustexts_queued,
+        statustexts=run.state.endpoint.statustexts_queued,
         planned_s=planned_s,
         stopped_by="stop" if stopped_early else "",
     )
@@ -522,59 +498,51 @@ async def run_sitl(
             host, port = mock_link.local_address  # type: ignore[attr-defined]
             daemon_link = open_transport(f"udpout:{host}:{port}")
             await daemon_link.open()
-        run = _start_run(
-            config, sdir, mock, cameras, (now_us, now_us), log_dir, timer, min_accuracy
-        )
-        settings, scorer, endpoint, flight_log = (
-            run.settings,
-            run.scorer,
-            run.endpoint,
-            run.flight_log,
-        )
-        daemon = Daemon(
-            replace(config, mavlink=settings),
-            cameras,
-            transport=daemon_link,
-            endpoint=endpoint,
-            notifier=notifier,
-            on_result=scorer,
-            on_status=on_status,
-            flight_log=flight_log,
-        )
-        mock_stop = asyncio.Event()
+        scorer = _Scorer(mock, cameras[0].model, now_us)
         lag = _LoopLag()
         lag_task = asyncio.create_task(lag.run(), name="loop lag")
+        ran_out: list[bool] = []  # the duration ended the run (not its caller's stop)
         try:
-            mock_task = asyncio.create_task(
-                run_mock_autopilot(mock_link, mcfg, mock_stop, autopilot=mock), name="mock"
-            )
-            timer_task: asyncio.Task[Any] | None = None
-            ran_out: list[bool] = []  # the duration ended the run (not its caller's stop)
-            if duration_s is not None:
+            async with open_service(
+                config,
+                cameras,
+                state_dir=sdir,
+                transport=daemon_link,
+                now_us=now_us,
+                start_log=_start_log(config, log_dir, cameras),
+                notifier=notifier,
+                on_result=scorer,
+                on_status=on_status,
+            ) as service:
+                run = _Run(mock, timer, min_accuracy, scorer, service.state)
+                mock_stop = asyncio.Event()
+                mock_task = asyncio.create_task(
+                    run_mock_autopilot(mock_link, mcfg, mock_stop, autopilot=mock), name="mock"
+                )
+                timer_task: asyncio.Task[Any] | None = None
+                if duration_s is not None:
 
-                async def _stop_after() -> None:
-                    await asyncio.sleep(duration_s)
-                    if not stop.is_set():
-                        ran_out.append(True)
-                    stop.set()
+                    async def _stop_after() -> None:
+                        await asyncio.sleep(duration_s)
+                        if not stop.is_set():
+                            ran_out.append(True)
+                        stop.set()
 
-                timer_task = asyncio.create_task(_stop_after(), name="duration")
-            try:
-                summary = await daemon.run(stop)
-                persist(settings, endpoint)
-            finally:
-                if timer_task is not None:
-                    timer_task.cancel()
-                # The autopilot takes in the daemon's last messages before anything else
-                # may hold things up, then the log drains off the loop (a PNG backlog takes
-                # a while; blocking the loop on it would delay what the mock still
-                # receives and make those statuses look stale).
-                mock_stop.set()
-                with contextlib.suppress(Exception):
-                    async with asyncio.timeout(2.0):
-                        await mock_task
-                if flight_log is not None:
-                    await asyncio.to_thread(flight_log.stop)
+                    timer_task = asyncio.create_task(_stop_after(), name="duration")
+                try:
+                    summary = await service.run(stop)
+                finally:
+                    if timer_task is not None:
+                        timer_task.cancel()
+                    # The autopilot takes in the daemon's last messages before anything
+                    # else may hold things up; then (leaving the service) the state is
+                    # persisted and the log drains off the loop (a PNG backlog takes a
+                    # while; blocking the loop on it would delay what the mock still
+                    # receives and make those statuses look stale).
+                    mock_stop.set()
+                    with contextlib.suppress(Exception):
+                        async with asyncio.timeout(2.0):
+                            await mock_task
         finally:
             lag_task.cancel()
             await daemon_link.close()
@@ -643,61 +611,52 @@ def run_sitl_virtual(
 
     up = start + vm.companion_start_us  # the companion's start
     with _state_directory(state_dir, config) as sdir:
-        run = _start_run(
+        with open_service_state(
             config,
             sdir,
-            mock,
-            cameras,
-            (start, up),
-            log_dir,
-            timer,
-            min_accuracy,
-            unix_minus_mono_us=unix_minus_mono_us,
-            started_unix_us=vm.unix_us_at_start,
-            deterministic=True,
-        )
-        settings, scorer, endpoint, flight_log = (
-            run.settings,
-            run.scorer,
-            run.endpoint,
-            run.flight_log,
-        )
-        companion = Companion(
-            [c.model for c in cameras],
-            config.pipeline,
-            endpoint,
             up,
-            config.daemon,
-            [c.name for c in cameras],
-            camera_rates_hz=[c.fps for c in cameras],
-            pipeline_timer=lambda: now_us() / 1e6,  # stages take no simulated time
-        )
-        plumbing = Plumbing(
-            companion,
-            cameras,
-            flight_log=flight_log,
-            notifier=notifier,
-            on_result=scorer,
-            on_status=on_status,
-            persist=lambda: persist(settings, endpoint),
-        )
-        sim = VirtualSitl(
-            mock,
-            companion,
-            plumbing,
-            cameras,
-            vm,
-            start_mono_us=start,
-            schedule=schedule,
-            link_up=link_up,
-        )
-        holder.append(sim)
-        try:
+            start_log=_start_log(
+                config,
+                log_dir,
+                cameras,
+                unix_minus_mono_us=unix_minus_mono_us,
+                started_unix_us=vm.unix_us_at_start,
+                deterministic=True,
+            ),
+        ) as state:
+            run = _Run(mock, timer, min_accuracy, _Scorer(mock, cameras[0].model, start), state)
+            companion = Companion(
+                [c.model for c in cameras],
+                config.pipeline,
+                state.endpoint,
+                up,
+                config.daemon,
+                [c.name for c in cameras],
+                camera_rates_hz=[c.fps for c in cameras],
+                pipeline_timer=lambda: now_us() / 1e6,  # stages take no simulated time
+                detector_model=read_detector_model(config.pipeline.detection),
+            )
+            plumbing = Plumbing(
+                companion,
+                cameras,
+                flight_log=state.flight_log,
+                notifier=notifier,
+                on_result=run.scorer,
+                on_status=on_status,
+                persist=state.persist,
+            )
+            sim = VirtualSitl(
+                mock,
+                companion,
+                plumbing,
+                cameras,
+                vm,
+                start_mono_us=start,
+                schedule=schedule,
+                link_up=link_up,
+            )
+            holder.append(sim)
             summary = sim.run(duration_s, should_stop or (lambda: False))
-            persist(settings, endpoint)
-        finally:
-            if flight_log is not None:
-                flight_log.stop()
 
     return _report(
         run, summary, "virtual", model=vm, planned_s=duration_s, stopped_early=sim.stopped_early

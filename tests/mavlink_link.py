@@ -1,13 +1,14 @@
-"""The asyncio adapter of the companion endpoint: feed bytes in, drain events, re-arm a timer.
+"""For tests: the companion endpoint alone on a link (an asyncio adapter: feed bytes in,
+drain events, re-arm a timer).
 
 Like aioquic's ``asyncio/protocol.py``: the endpoint
 (:mod:`tcm_companion.mavlink.endpoint`) holds all the protocol logic; this only moves
 bytes between it and a transport, wakes it at its deadlines, and hands its events to a
 callback. Frame outputs are pushed with
-:meth:`CompanionLink.send_frame` from the same event loop. (The daemon does not use this
-class: its :class:`~tcm_companion.service.companion.Companion` owns the endpoint and the
-daemon moves the bytes itself; this is the endpoint alone on a link, for tests, interop
-and tools.)
+:meth:`CompanionLink.send_frame` from the same event loop. The daemon does not use this
+class (its :class:`~tcm_companion.service.companion.Companion` owns the endpoint and the
+daemon moves the bytes itself), so it lives with the tests that drive the endpoint alone
+over a real link: the interop, loop and spoofing tests.
 
 The clock is injected (:class:`~tcm_companion.io.aio.LoopClock`, µs; by default the
 companion monotonic clock) and must be the clock the frame times are on, because the
@@ -20,12 +21,17 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from ..core.pipeline import FrameResult
-from ..io.aio import MONOTONIC, LoopClock, monotonic_us
-from ..io.transports import Transport, TransportClosed, TransportError, TransportTimeout
-from ..mavlink.endpoint import CompanionEndpoint, Event
+from tcm_companion.core.pipeline import FrameResult
+from tcm_companion.io.aio import MONOTONIC, LoopClock
+from tcm_companion.io.transports import (
+    Transport,
+    TransportClosed,
+    TransportError,
+    TransportTimeout,
+)
+from tcm_companion.mavlink.endpoint import CompanionEndpoint, Event
 
-__all__ = ["CompanionLink", "monotonic_us"]
+__all__ = ["CompanionLink"]
 
 _RETRY_US = 100_000  # a closed or failing transport is read again after this
 _POLL_MAX_US = 1_000_000  # the timer polls at least this often

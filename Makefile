@@ -34,7 +34,7 @@ $(STAMP): pyproject.toml $(LOCK)
 ## platform and Python >= 3.11, keeping the pinned versions that still fit. To move to newer
 ## releases: make lock LOCK_FLAGS=--upgrade (or LOCK_FLAGS='--upgrade-package numpy').
 ## Changing numpy, scipy or opencv-python-headless changes results in the last digits:
-## re-record the reference logs (tests/data/logs/README.md).
+## re-record the reference logs (tools/update_refs.py, tests/data/logs/README.md).
 lock:
 	@echo "make: resolving $(LOCK) from pyproject.toml with $(UV) (~10 s)"
 	@tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && \

@@ -26,8 +26,9 @@ import pytest
 
 from tcm_companion.core.camera import Equirectangular
 from tcm_companion.core.detection import Detector
+from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.cameras import CameraError, CameraReader, Frame
-from tcm_companion.io.cameras.base import CameraGone, monotonic_us
+from tcm_companion.io.cameras.base import CameraGone
 from tcm_companion.io.cameras.settings import CameraSettings, open_source
 from tcm_companion.io.transports import TransportClosed, open_transport
 from tcm_companion.mavlink import tcm_dialect as mav

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from tcm_companion.core.camera import Equirectangular, Fisheye, Pinhole
+from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.cameras import (
     CameraError,
     CameraGone,
@@ -29,7 +30,6 @@ from tcm_companion.io.cameras import (
     EndOfStream,
     Frame,
     FrameSource,
-    monotonic_us,
 )
 from tcm_companion.io.cameras.base import Pacer
 from tcm_companion.io.cameras.dual_fisheye import DualFisheyeSource, Stitcher

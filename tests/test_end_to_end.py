@@ -11,9 +11,10 @@ import pytest
 
 from tcm_companion.cli import main
 from tcm_companion.config import AppConfig
-from tcm_companion.eval.evaluate import after_warmup, evaluate_scenario, summarize
+from tcm_companion.eval.evaluate import evaluate_scenario, summarize
 from tcm_companion.io.results import RESULTS_HEADER
 from tcm_companion.io.scenario import load_scenario
+from tcm_companion.io.scoring import after_warmup
 from tcm_companion.sim import make_scenario
 
 from .helpers import example_path

@@ -237,7 +237,7 @@ def test_malformed_detections_name_the_line(broken: Path, row: str, message: str
 def test_truth_matching_is_greedy_nearest_within_the_gate() -> None:
     import math
 
-    from tcm_companion.io.truth import MATCH_GATE_RAD, match_truth
+    from tcm_companion.io.scoring import MATCH_GATE_RAD, match_truth
 
     rel = np.array([10.0, 0.0, 0.0])  # 10 m north; radius 0.5 m: α = asin(0.05)
     alpha = math.asin(0.05)

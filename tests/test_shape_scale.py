@@ -179,7 +179,8 @@ def _static_flight(fit_window_s: float | None) -> dict[str, float]:
     object's box) that were decided."""
     from tcm_companion.config import load_config
     from tcm_companion.core.pipeline import FrameResult
-    from tcm_companion.eval.evaluate import after_warmup, evaluate_scenario, summarize
+    from tcm_companion.eval.evaluate import evaluate_scenario, summarize
+    from tcm_companion.io.scoring import after_warmup
     from tcm_companion.sim import make_scenario
 
     sets = ["detection.backend=boxes"]

@@ -35,8 +35,9 @@ import numpy as np
 
 from tcm_companion.config import load_config
 from tcm_companion.core.pipeline import Pipeline
-from tcm_companion.eval.evaluate import after_warmup, evaluate_scenario, summarize
+from tcm_companion.eval.evaluate import evaluate_scenario, summarize
 from tcm_companion.io.scenario import load_scenario
+from tcm_companion.io.scoring import after_warmup
 from tcm_companion.sim import make_scenario
 
 ROOT = Path(__file__).resolve().parent.parent

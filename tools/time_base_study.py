@@ -78,7 +78,7 @@ def kept_frames(n: int, rate: float | None, seed: int) -> list[int]:
 def worker(name: str, seed: int, duration_s: float | None) -> dict[str, Any]:
     from tcm_companion.config import AppConfig
     from tcm_companion.core.pipeline import Pipeline
-    from tcm_companion.io.truth import match_truth
+    from tcm_companion.io.scoring import match_truth
     from tcm_companion.sim import make_scenario
 
     sc = make_scenario(name, duration_s=duration_s, seed=seed)

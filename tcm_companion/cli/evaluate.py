@@ -74,7 +74,7 @@ def _scenarios(args: argparse.Namespace, config: AppConfig) -> list[Any]:
 def _no_decision(records: Sequence[Any], cls: Any) -> str | None:
     """Why nothing can be scored in ``records`` ("no decision ..."), None when something
     was decided after the warm-up."""
-    from ..eval.evaluate import after_warmup
+    from ..io.scoring import after_warmup
 
     after = after_warmup(list(records), cls)
     if any(r.state != "unknown" for r in after):

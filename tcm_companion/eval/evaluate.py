@@ -5,7 +5,8 @@ whose local-level bearing is closest (within a gate), with the states and scores
 every method. From these, :func:`summarize` computes the paper's numbers per method:
 accuracy at the configured threshold, coverage (object-frames after warm-up that got a
 decision), ROC area and the accuracy-optimal threshold. Warm-up is time: object-frames
-captured at least the classifier's ``interval_s`` after the scenario's first frame count.
+captured at least the classifier's ``interval_s`` after the scenario's first frame count
+(:func:`~tcm_companion.io.scoring.after_warmup`, the rule SITL scores with too).
 
 All methods are scored on the same object-frames: those where TCM reached a decision
 (so a method is never credited for frames TCM declined as degenerate).
@@ -30,16 +31,12 @@ import numpy as np
 from ..config import AppConfig
 from ..core.classify import METHODS, ClassifierConfig, Method, fused_score
 from ..core.pipeline import FrameResult, Pipeline
-from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
 from ..io.detector_model import read_detector_model
 from ..io.scenario_extras import Detection
-from ..io.truth import Truth, match_truth
+from ..io.scoring import after_warmup, match_truth
+from ..io.truth import Truth
 from ..replay.scenario import DetectionRow, ScenarioLike, run_replay, with_method
 from .metrics import confusion, roc
-
-#: A record captured this close before the end of the warm-up counts as after it
-#: (capture jitter; a quarter frame at the fastest rate supported).
-WARMUP_SLACK_S = JITTER_FRACTION / MAX_FRAME_RATE_HZ
 
 
 @dataclass(frozen=True)
@@ -103,7 +100,7 @@ def match_frame(
     t0_us: int | None = None,
 ) -> tuple[list[ObjectFrame], int]:
     """Truth objects of one frame matched to result objects (greedy by bearing,
-    :func:`~tcm_companion.io.truth.match_truth`).
+    :func:`~tcm_companion.io.scoring.match_truth`).
 
     ``frame`` is the scenario's frame index (the truth's), which differs from the
     pipeline's own count when frames were dropped; ``t0_us`` the scenario's first capture
@@ -283,20 +280,12 @@ class MethodSummary:
     fpr: float
 
 
-def after_warmup(
-    records: list[ObjectFrame], cls: ClassifierConfig, warmup_s: float | None = None
-) -> list[ObjectFrame]:
-    """The records captured at least ``warmup_s`` (default: the classifier's interval,
-    after which a stationary object can be decided) after their scenario's first frame."""
-    warm = cls.interval_s if warmup_s is None else warmup_s
-    return [r for r in records if r.time_s >= warm - WARMUP_SLACK_S]
-
-
 def summarize(
     records: list[ObjectFrame], cls: ClassifierConfig, warmup_s: float | None = None
 ) -> list[MethodSummary]:
     """Per-method metrics over pooled records (static and moving flights together);
-    coverage and accuracy count the records after the warm-up (:func:`after_warmup`)."""
+    coverage and accuracy count the records after the warm-up
+    (:func:`~tcm_companion.io.scoring.after_warmup`)."""
     after = after_warmup(records, cls, warmup_s)
     decided = [r for r in after if r.state != "unknown"]
     coverage = len(decided) / len(after) if after else math.nan

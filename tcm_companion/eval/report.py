@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.classify import ClassifierConfig
-from .evaluate import MethodSummary, ObjectFrame, ScenarioEval, after_warmup, summarize
+from ..io.scoring import after_warmup
+from .evaluate import MethodSummary, ObjectFrame, ScenarioEval, summarize
 from .metrics import roc, separation
 
 if TYPE_CHECKING:

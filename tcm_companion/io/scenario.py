@@ -29,7 +29,7 @@ from ..core.camera import CameraModel, CameraModelError, Equirectangular, camera
 from ..core.telemetry import AttitudeSample, PositionSample, TelemetrySample
 from ..mavlink.samples import sample_from_message
 from .tlog import TlogError, TlogStats, read_tlog
-from .truth import Truth as Truth  # truth.csv's rows (and scoring against them: .truth)
+from .truth import Truth as Truth  # truth.csv's rows (scoring against them: .scoring)
 
 if TYPE_CHECKING:
     from .scenario_extras import Detection, TargetSpec

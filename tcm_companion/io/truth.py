@@ -1,71 +1,17 @@
-"""Ground truth, and the one rule that scores the pipeline against it.
+"""Ground truth: a scenario's truth rows.
 
 :class:`Truth` holds a scenario's truth rows (``truth.csv``, or a simulated scenario's):
 one per frame and object. Its :meth:`~Truth.ttc_s` is the true time to contact and
 :meth:`~Truth.collision_course` the true collision course, for the evaluation and the
-plots alike.
-
-:func:`match_truth` matches one truth object to the pipeline's objects: the nearest
-bearing not yet taken, within :data:`MATCH_GATE_RAD` plus the object's true angular
-diameter. The evaluation (``eval``), the mock-autopilot SITL and the ArduPilot SITL
-flights all score with it.
+plots alike. Scoring the pipeline against it (matching, warm-up, tallies) is
+:mod:`.scoring`.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-
-from ..core.frames import angle_between, normalize
-
-#: A truth object matches a detected object whose bearing is within this of its centre's,
-#: plus twice its true angular radius (a box or blob centre may sit anywhere on the disc).
-MATCH_GATE_RAD = math.radians(5.0)
-
-
-@dataclass(frozen=True)
-class TruthMatch:
-    """Which of the candidates one truth object matched (``index``, -1: none within the
-    gate), the bearing error to the nearest free candidate (inf: none) and the object's
-    true angular radius (rad)."""
-
-    index: int
-    bearing_error_rad: float
-    alpha_true_rad: float
-
-    @property
-    def matched(self) -> bool:
-        return self.index >= 0
-
-
-def match_truth(
-    rel_ned_m: np.ndarray,
-    radius_m: float,
-    bearings_ned: Sequence[np.ndarray],
-    used: set[int],
-    gate_rad: float = MATCH_GATE_RAD,
-) -> TruthMatch:
-    """Match a truth object at ``rel_ned_m`` from the camera (its radius ``radius_m``) to
-    the nearest of ``bearings_ned`` (the pipeline's detected objects) not in ``used``,
-    accepted within ``gate_rad + 2 α`` (α: its true angular radius). A match is added to
-    ``used``: called for each truth object of a frame in turn, it matches greedily, one
-    object to one truth object."""
-    b_true = normalize(rel_ned_m)
-    alpha = math.asin(min(1.0, radius_m / float(np.linalg.norm(rel_ned_m))))
-    best, best_ang = -1, math.inf
-    for i, b in enumerate(bearings_ned):
-        if i in used:
-            continue
-        ang = float(angle_between(b, b_true))
-        if ang < best_ang:
-            best, best_ang = i, ang
-    if best < 0 or best_ang > gate_rad + 2.0 * alpha:
-        return TruthMatch(-1, best_ang, alpha)
-    used.add(best)
-    return TruthMatch(best, best_ang, alpha)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 import shutil
 import statistics
 import tempfile
@@ -35,16 +34,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
-import tomli_w
-
 from ..core.camera import CameraModel, CameraModelError, camera_from_dict
 from ..flightlog import reader, topics
 from ..flightlog.docs import annotation_circles, result_doc
 from ..flightlog.settings import LoggingConfig
 from ..flightlog.writer import FlightLogWriter
-from ..io.scenario import FORMAT, FRAMES_HEADER, ScenarioError, load_scenario
-from ..io.tlog import TlogError, TlogWriter, read_tlog
+from ..io.scenario import ScenarioError, load_scenario
+from ..io.scenario_writer import ScenarioWriter, scenario_toml
+from ..io.tlog import TlogError, read_tlog
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +58,6 @@ __all__ = [
     "split_mavlink",
 ]
 
-_FRAME_NAME = re.compile(r"^\d{6}\.png$")
 # Message ids the scenario reader needs from the autopilot (common.xml).
 _MSGID_ATTITUDE = (30, 31)  # ATTITUDE, ATTITUDE_QUATERNION
 
@@ -189,12 +185,6 @@ def _msgid(frame: bytes) -> int:
     return frame[5]
 
 
-def _clear_stale_frames(frames_dir: Path, n_frames: int) -> None:
-    for stale in frames_dir.iterdir():
-        if _FRAME_NAME.match(stale.name) and int(stale.name[:6]) >= n_frames:
-            stale.unlink()
-
-
 # --------------------------------------------------------------------------------------
 # Log -> scenario
 # --------------------------------------------------------------------------------------
@@ -224,8 +214,7 @@ def log_to_scenario(
     camera = camera_from_metadata(metadata, camera_id, log_path)
 
     image_topic = topics.camera_image(camera_id)
-    frames_dir = out / "frames"
-    frames_dir.mkdir(parents=True, exist_ok=True)
+    writer = ScenarioWriter(out)
 
     capture_mono_us: list[int] = []
     chunks: list[tuple[int, bytes]] = []
@@ -258,9 +247,7 @@ def log_to_scenario(
         if capture_mono_us and t_us <= capture_mono_us[-1]:
             skipped += 1  # scenario frame times must strictly increase
             continue
-        path = frames_dir / f"{len(capture_mono_us):06d}.png"
-        if not cv2.imwrite(str(path), image):
-            raise OSError(f"{path}: cv2.imwrite failed")
+        writer.write_frame(len(capture_mono_us), image)
         capture_mono_us.append(int(t_us))
         offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
 
@@ -286,28 +273,14 @@ def log_to_scenario(
             "(the scenario format requires the autopilot's attitude)"
         )
 
-    with open(out / "telemetry.tlog", "wb") as tlog:
-        writer = TlogWriter(tlog)
-        for t_mono, frame in frames_out:
-            writer.write(t_mono + offset_us, frame)
-
-    with open(out / "frames.csv", "w", newline="") as csv:
-        csv.write(",".join(FRAMES_HEADER) + "\n")
-        for i, t_mono in enumerate(capture_mono_us):
-            csv.write(f"{i},{t_mono + offset_us}\n")
-
-    _clear_stale_frames(frames_dir, len(capture_mono_us))
+    writer.write_telemetry_records((t_mono + offset_us, frame) for t_mono, frame in frames_out)
+    writer.write_frames_csv(t_mono + offset_us for t_mono in capture_mono_us)
+    writer.remove_stale_frames(len(capture_mono_us))
     description = f"converted from flight log {log_path.name} (camera{camera_id})"
     if metadata.get("description"):
         description += f": {metadata['description']}"
-    doc: dict[str, Any] = {
-        "format": FORMAT,
-        "name": name or log_path.stem,
-        "description": description,
-        "frames_dir": "frames",
-        "camera": camera.to_dict(),
-    }
-    (out / "scenario.toml").write_text(tomli_w.dumps(doc), encoding="utf-8")
+    toml = scenario_toml(name or log_path.stem, description, camera, layout="tomli_w")
+    writer.write_toml(toml)
 
     summary = ExportSummary(
         scenario_dir=out,

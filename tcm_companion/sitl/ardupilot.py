@@ -44,8 +44,8 @@ import numpy as np
 from ..config import AppConfig
 from ..core.pipeline import FrameResult
 from ..io.aio import monotonic_us
+from ..io.scoring import match_truth
 from ..io.transports import open_transport
-from ..io.truth import match_truth
 from ..mavlink.copter_modes import mode_name, mode_number
 from ..mavlink.endpoint import CompanionEndpoint
 from ..service.daemon import CameraInput, DaemonSummary
@@ -63,7 +63,7 @@ BRAKE = mode_number("BRAKE")
 SITL_PARAMS: dict[str, float] = {"SCR_ENABLE": 1, "PRX1_TYPE": 0}
 APPLET_PARAMS: dict[str, float] = {"TCMA_ACTION": 2}
 #: The ball matches the daemon's object nearest its bearing within this plus its true
-#: angular diameter (:func:`~tcm_companion.io.truth.match_truth`, the evaluation's rule;
+#: angular diameter (:func:`~tcm_companion.io.scoring.match_truth`, the evaluation's rule;
 #: these flights have always used a gate a degree wider than its MATCH_GATE_RAD, kept so
 #: that their reports and traces stay as they were).
 MATCH_GATE_RAD = math.radians(6.0)

@@ -19,7 +19,8 @@ pose at each frame's capture time, while the companion only knows what the mock'
 brakes on a collision-course alarm, the camera sees the braking, so the loop is closed.
 
 Every processed frame is scored against the simulator's truth (objects matched by
-bearing: :func:`~tcm_companion.io.truth.match_truth`, the evaluation's rule), and :class:`SitlReport` summarises accuracy, latency, drops and faults. A run
+bearing and counted after the classifier's interval: :mod:`~tcm_companion.io.scoring`,
+the evaluation's rules), and :class:`SitlReport` summarises accuracy, latency, drops and faults. A run
 fails (``report.ok`` False, ``sitl`` exits 1) when nothing was processed, the frame
 counts do not add up, the autopilot rejected messages, the watchdog was withheld, or the
 accuracy of the decided object-frames after the warm-up is below ``min_accuracy`` —
@@ -46,12 +47,13 @@ import numpy as np
 
 from ..config import AppConfig
 from ..core.camera import CameraModel
+from ..core.classify import ClassifierConfig
 from ..core.frames import normalize
 from ..core.pipeline import FrameResult
 from ..io.aio import monotonic_us
 from ..io.detector_model import read_detector_model
+from ..io.scoring import Score, match_truth, warmed_up
 from ..io.transports import Transport, open_transport
-from ..io.truth import match_truth
 from ..logsetup import start_flight_log
 from ..service.plumbing import CameraInput, DaemonSummary, NotifierLike, run_length_text
 from ..service.runner import ServiceState, StartLog, open_service, open_service_state
@@ -61,7 +63,6 @@ from .virtual import RunTimer, VirtualTimeModel, frame_result_key
 
 log = logging.getLogger(__name__)
 
-WARMUP_S = 2.0  # object-frames before this (run time) are not scored
 #: Least accuracy of the decided object-frames after the warm-up for a run to pass.
 DEFAULT_MIN_ACCURACY = 0.90
 
@@ -71,27 +72,6 @@ Clock = Literal["real", "virtual"]
 #: :meth:`~tcm_companion.sim.scene.truth_camera.SimulatedCamera.for_mock`: the sensor noise, and
 #: in virtual time the simulated clock and a sleep that does not sleep.
 CameraFactory = Callable[..., Any]
-
-
-@dataclass
-class Score:
-    """Object-frames of balls in view, matched to the daemon's objects by bearing."""
-
-    truth_frames: int = 0  # object-frames with the object in front of the camera
-    truth_after_warmup: int = 0  # ... of them after the warm-up
-    matched: int = 0
-    decided: int = 0  # matched and not "unknown" (after the warm-up)
-    correct: int = 0
-    scored: int = 0  # matched after the warm-up
-    by_state: Counter[str] = field(default_factory=Counter)
-
-    @property
-    def accuracy(self) -> float:
-        return self.correct / self.decided if self.decided else math.nan
-
-    @property
-    def coverage(self) -> float:
-        return self.decided / self.scored if self.scored else math.nan
 
 
 @dataclass
@@ -159,7 +139,7 @@ class SitlReport:
             f"SITL {self.scenario}: {ran}, {self.clock} clock",
             f"  frames: {s.frames_text()} ({'balanced' if s.frames_balance else 'NOT BALANCED'})",
             f"  latency capture->MAVLink: {latency}{modelled}",
-            f"  objects: {sc.matched}/{sc.truth_frames} object-frames matched; after {WARMUP_S:.0f} s"
+            f"  objects: {sc.matched}/{sc.truth_frames} object-frames matched; after {sc.warmup_s:g} s"
             f" warm-up: {self.accuracy_text()}, coverage {coverage}",
             f"  states: {dict(sc.by_state) or 'none'}",
             f"  mock autopilot: {self.mock_status_received} TCM_OBJECT_STATUS received,"
@@ -198,14 +178,19 @@ class SitlReport:
 
 
 class _Scorer:
-    """Scores each frame's objects against the mock's true vehicle and balls, and
-    hashes every result (the digest two virtual runs must agree on)."""
+    """Scores each frame's objects against the mock's true vehicle and balls
+    (:mod:`~tcm_companion.io.scoring`: after the classifier ``cls``'s interval from
+    ``start_mono_us``), and hashes every result (the digest two virtual runs must agree
+    on)."""
 
-    def __init__(self, mock: Any, camera: CameraModel, start_mono_us: int) -> None:
+    def __init__(
+        self, mock: Any, camera: CameraModel, start_mono_us: int, cls: ClassifierConfig
+    ) -> None:
         self.mock = mock
         self.camera = camera
         self.start_mono_us = start_mono_us
-        self.score = Score()
+        self.cls = cls
+        self.score = Score(warmup_s=cls.interval_s)
         self.digest = hashlib.sha256()
         self.frames = 0
 
@@ -214,7 +199,7 @@ class _Scorer:
         self.frames += 1
         truth = self.mock.vehicle_truth(result.t_us)
         R_cam_from_ned = (truth.R_ned_from_body @ self.camera.R_body_from_cam).T
-        warm = (result.t_us - self.start_mono_us) / 1e6 >= WARMUP_S
+        warm = warmed_up((result.t_us - self.start_mono_us) / 1e6, self.cls)
         objs = [o for o in result.objects if o.detected]
         bearings = [o.bearing_ned for o in objs]
         used: set[int] = set()
@@ -224,20 +209,8 @@ class _Scorer:
             px = self.camera.pixel_from_bearing_cam(R_cam_from_ned @ normalize(rel))
             if not np.all(np.isfinite(px)) or not bool(self.camera.in_image(px)):
                 continue
-            sc.truth_frames += 1
-            sc.truth_after_warmup += int(warm)
             m = match_truth(rel, obj.bounding_radius_m, bearings, used)
-            if not m.matched:
-                continue
-            sc.matched += 1
-            if not warm:
-                continue
-            o = objs[m.index]
-            sc.scored += 1
-            sc.by_state[o.state] += 1
-            if o.state != "unknown":
-                sc.decided += 1
-                sc.correct += int((o.state == "moving") == obj.moving)
+            sc.add(warm, objs[m.index].state if m.matched else None, obj.moving)
 
 
 class _LoopLag:
@@ -498,7 +471,7 @@ async def run_sitl(
             host, port = mock_link.local_address  # type: ignore[attr-defined]
             daemon_link = open_transport(f"udpout:{host}:{port}")
             await daemon_link.open()
-        scorer = _Scorer(mock, cameras[0].model, now_us)
+        scorer = _Scorer(mock, cameras[0].model, now_us, config.pipeline.classifier)
         lag = _LoopLag()
         lag_task = asyncio.create_task(lag.run(), name="loop lag")
         ran_out: list[bool] = []  # the duration ended the run (not its caller's stop)
@@ -624,7 +597,13 @@ def run_sitl_virtual(
                 deterministic=True,
             ),
         ) as state:
-            run = _Run(mock, timer, min_accuracy, _Scorer(mock, cameras[0].model, start), state)
+            run = _Run(
+                mock,
+                timer,
+                min_accuracy,
+                _Scorer(mock, cameras[0].model, start, config.pipeline.classifier),
+                state,
+            )
             companion = Companion(
                 [c.model for c in cameras],
                 config.pipeline,

@@ -1,7 +1,8 @@
 """Camera sources behind one interface, read by one thread per camera.
 
 - :mod:`.base` — the contract: :class:`FrameSource` (``open``/``read``/``close``),
-  :class:`Frame`, :class:`CameraStats`, the errors, the companion clock.
+  :class:`Frame`, :class:`CameraStats`, the errors (the companion
+  clock the capture times are on is :func:`tcm_companion.io.aio.monotonic_us`).
 - :mod:`.reader` — :class:`CameraReader`, the per-camera daemon thread.
 - Sources: :class:`OpenCVDevice`, :class:`GStreamerSource`, :class:`VideoFileSource`
   (:mod:`.opencv`), :class:`FramesDirSource`, :class:`ScenarioSource`,
@@ -26,7 +27,6 @@ from .base import (
     EndOfStream,
     Frame,
     FrameSource,
-    monotonic_us,
 )
 from .reader import CameraReader
 
@@ -52,7 +52,6 @@ __all__ = [
     "EndOfStream",
     "Frame",
     "FrameSource",
-    "monotonic_us",
     *_LAZY,
 ]
 

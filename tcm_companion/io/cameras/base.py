@@ -28,9 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# The companion clock every capture time is on (µs), for the sources: io/aio.py has it.
-from ..aio import monotonic_us as monotonic_us
-
 
 class CameraError(RuntimeError):
     """A camera cannot be opened or configured (bad device, bad settings)."""

@@ -17,7 +17,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .base import FrameSource, monotonic_us
+from ..aio import monotonic_us
+from .base import FrameSource
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .base import CameraError, CameraGone, EndOfStream, PacedSource, monotonic_us
+from ..aio import monotonic_us
+from .base import CameraError, CameraGone, EndOfStream, PacedSource
 
 log = logging.getLogger(__name__)
 

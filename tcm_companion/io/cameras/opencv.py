@@ -32,7 +32,8 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from .base import CameraError, CameraGone, EndOfStream, FrameSource, PacedSource, monotonic_us
+from ..aio import monotonic_us
+from .base import CameraError, CameraGone, EndOfStream, FrameSource, PacedSource
 
 log = logging.getLogger(__name__)
 

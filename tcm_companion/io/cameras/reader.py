@@ -43,7 +43,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .base import CameraGone, CameraStats, EndOfStream, Frame, FrameSource, monotonic_us
+from ..aio import monotonic_us
+from .base import CameraGone, CameraStats, EndOfStream, Frame, FrameSource
 
 log = logging.getLogger(__name__)
 

@@ -19,8 +19,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..aio import monotonic_us
 from ..scenario import ScenarioError, load_scenario
-from .base import CameraError, CameraGone, EndOfStream, FrameSource, Pacer, Waker, monotonic_us
+from .base import CameraError, CameraGone, EndOfStream, FrameSource, Pacer, Waker
 
 log = logging.getLogger(__name__)
 

@@ -26,7 +26,7 @@ like the SITL drivers' ground station) and:
   LOCAL_POSITION_NED until then);
 - feeds every ATTITUDE / LOCAL_POSITION_NED to a
   :class:`~tcm_companion.core.telemetry.TelemetryBuffer`, stamped with its receive time on
-  the companion monotonic clock (:func:`~tcm_companion.io.cameras.base.monotonic_us`): the
+  the companion monotonic clock (:func:`~tcm_companion.io.aio.monotonic_us`): the
   autopilot's boot clock is mapped to the companion clock by the same lower-envelope fit
   the pipeline uses, and a reboot (boot time going back) restarts the fit.
 
@@ -87,7 +87,8 @@ import numpy as np
 
 from ...core.frames import FloatArray
 from ...core.telemetry import AttitudeSample, PositionSample, TelemetryBuffer
-from ...io.cameras.base import CameraError, CameraGone, FrameSource, monotonic_us
+from ...io.aio import monotonic_us
+from ...io.cameras.base import CameraError, CameraGone, FrameSource
 from ...io.cameras.settings import SIM_SCENE_KINDS, SimSceneKind, StaticBall
 from ...io.link_thread import LinkThread
 from ...io.transports import TransportError

@@ -18,20 +18,17 @@ centre, range ratios, its image): :meth:`SimulatedScenario.true_range_m`,
 
 from __future__ import annotations
 
-import json
-import math
-import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from ...core.camera import CameraModel
 from ...core.frames import FloatArray
 from ...core.telemetry import AttitudeSample, PositionSample, TelemetrySample
-from ...io.scenario import FORMAT, FRAMES_HEADER, TRUTH_HEADER, Truth
+from ...io.scenario import Truth
+from ...io.scenario_writer import ScenarioWriter, scenario_toml
 from ...io.tlog import TlogStats, iter_tlog
 from ...mavlink.samples import sample_from_message
 from ..vehicle.telemetry import (
@@ -244,42 +241,6 @@ def make_scenario(
 # --------------------------------------------------------------------------------------
 # Export
 # --------------------------------------------------------------------------------------
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        text = repr(v)
-        return text if any(c in text for c in ".eE") else text + ".0"
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def scenario_toml(sim: SimulatedScenario) -> str:
-    """The ``scenario.toml`` text of a simulated scenario."""
-    lines = [
-        f"format = {_toml_value(FORMAT)}",
-        f"name = {_toml_value(sim.name)}",
-        f"description = {_toml_value(sim.description)}",
-        'frames_dir = "frames"',
-        "",
-        "[camera]",
-    ]
-    lines += [f"{k} = {_toml_value(v)}" for k, v in sim.camera.to_dict().items()]
-    return "\n".join(lines) + "\n" + targets_toml(sim.plan.objects)
-
-
-_FRAME_NAME = re.compile(r"^\d{6}\.png$")
-
-
 def export_scenario(
     sim: SimulatedScenario,
     out_dir: str | Path,
@@ -294,31 +255,14 @@ def export_scenario(
     default settings; a :class:`~.detector_sim.DetectorSimConfig`: those), from the
     visible coverage rendered with each frame; otherwise a stale one is removed.
     """
-    out = Path(out_dir)
-    frames_dir = out / "frames"
-    frames_dir.mkdir(parents=True, exist_ok=True)
-    (out / "scenario.toml").write_text(scenario_toml(sim), encoding="utf-8")
-    (out / "telemetry.tlog").write_bytes(sim.tlog_bytes)
-
-    with open(out / "frames.csv", "w", newline="") as fh:
-        fh.write(",".join(FRAMES_HEADER) + "\n")
-        for i, t in enumerate(sim.frame_times_us):
-            fh.write(f"{i},{int(t)}\n")
-
-    tr = sim.truth
-    with open(out / "truth.csv", "w", newline="") as fh:
-        fh.write(",".join(TRUTH_HEADER) + "\n")
-        for j in range(len(tr.frame)):
-            o, v = tr.obj_ned_m[j], tr.veh_ned_m[j]
-            fh.write(
-                f"{int(tr.frame[j])},{int(tr.object_id[j])},{int(tr.moving[j])},"
-                f"{o[0]:.6f},{o[1]:.6f},{o[2]:.6f},{tr.obj_radius_m[j]:.6f},"
-                f"{v[0]:.6f},{v[1]:.6f},{v[2]:.6f}\n"
-            )
-
-    for stale in frames_dir.iterdir():
-        if _FRAME_NAME.match(stale.name) and int(stale.name[:6]) >= sim.n_frames:
-            stale.unlink()
+    writer = ScenarioWriter(out_dir)
+    # [[target]] tables only when an object is not the default sphere
+    extra = targets_toml(sim.plan.objects)
+    writer.write_toml(scenario_toml(sim.name, sim.description, sim.camera, extra=extra))
+    writer.write_telemetry(sim.tlog_bytes)
+    writer.write_frames_csv(sim.frame_times_us)
+    writer.write_truth(sim.truth)
+    writer.remove_stale_frames(sim.n_frames)
 
     det_config: DetectorSimConfig | None = None
     if detections is True:
@@ -328,7 +272,7 @@ def export_scenario(
     elif detections is not None and detections is not False:
         det_config = detections
     if det_config is None:
-        (out / "detections.csv").unlink(missing_ok=True)
+        writer.remove_detections()
 
     show = progress if progress is not None else sim.n_frames > 50
     indices: Iterable[int] = range(sim.n_frames)
@@ -345,13 +289,9 @@ def export_scenario(
 
             img, cov = sim.read_frame_with_coverage(i)
             truth_boxes.append(true_boxes_from_coverage(sim, i, cov))
-        path = frames_dir / f"{i:06d}.png"
-        if not cv2.imwrite(str(path), img):
-            raise OSError(f"{path}: cv2.imwrite failed")
+        writer.write_frame(i, img)
     if det_config is not None:
         from .detector_sim import simulate_detections
-        from .scenario_io import write_detections_csv
 
-        rows = simulate_detections(sim, det_config, truth_boxes)
-        write_detections_csv(out / "detections.csv", rows)
-    return out
+        writer.write_detections(simulate_detections(sim, det_config, truth_boxes))
+    return writer.root

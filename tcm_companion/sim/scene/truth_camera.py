@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...io.cameras.base import CameraError, CameraGone, FrameSource, Waker, monotonic_us
+from ...io.aio import monotonic_us
+from ...io.cameras.base import CameraError, CameraGone, FrameSource, Waker
 from ...io.cameras.settings import TruthFn
 
 if TYPE_CHECKING:

@@ -10,6 +10,13 @@ module (``pytestmark``) or on the test with a comment saying which of these it i
 from __future__ import annotations
 
 import pytest
+from hypothesis import settings
+
+# No per-example deadline: it measures the machine's load, not the code (a property test
+# on a busy two-core machine tripped hypothesis's 200 ms). Slow examples still show in
+# --durations and in the fast lane's time.
+settings.register_profile("tcm", deadline=None)
+settings.load_profile("tcm")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -61,7 +61,7 @@ lint: $(STAMP)
 ## What mypy checks by name (and whatever that imports): the science, the daemon and its
 ## SITL runs, the command line, the camera sources.
 TYPED := tcm_companion/core tcm_companion/service tcm_companion/sitl tcm_companion/cli \
-         tcm_companion/logsetup.py tcm_companion/flightlog/docs.py tcm_companion/flightlog/handle.py \
+         tcm_companion/flight_log_setup.py tcm_companion/flightlog/docs.py tcm_companion/flightlog/handle.py \
          tcm_companion/bench/daemon.py tcm_companion/io/cameras tcm_companion/io/sdnotify.py \
          tcm_companion/sim/sources.py tcm_companion/sim/scene/truth_camera.py
 

@@ -288,7 +288,7 @@ def test_a_file_that_is_not_a_video_is_refused_at_start_like_a_missing_one(tmp_p
     """It was retried for ever (exit 0, 0 frames) while a missing file was refused."""
     from tcm_companion.core.camera import Equirectangular
     from tcm_companion.io.cameras.base import CameraError
-    from tcm_companion.io.cameras.settings import CameraSettings, open_source
+    from tcm_companion.io.cameras.settings import CameraSourceConfig, open_source
 
     junk = tmp_path / "flight.mp4"
     junk.write_text("not a video\n")
@@ -296,9 +296,9 @@ def test_a_file_that_is_not_a_video_is_refused_at_start_like_a_missing_one(tmp_p
     empty.mkdir()
     cam = Equirectangular(360, 220)
     with pytest.raises(CameraError, match=r"^camera\.path: .*flight\.mp4: OpenCV cannot open"):
-        open_source(CameraSettings(source="file", path=str(junk)), cam)
+        open_source(CameraSourceConfig(source="file", path=str(junk)), cam)
     with pytest.raises(CameraError, match=r"^camera\.path: .*frames: no images"):
-        open_source(CameraSettings(source="frames", path=str(empty)), cam)
+        open_source(CameraSourceConfig(source="frames", path=str(empty)), cam)
 
     proc = _run_cli(
         [*_daemon_args(tmp_path), "--set", "camera.source=file", "--set", f"camera.path={junk}"],
@@ -783,7 +783,7 @@ def test_position_before_the_ekf_origin_is_waiting_not_a_fault() -> None:
     assert (st.problem, st.fault) == ("position stale", True)
 
     comp = Companion([Equirectangular(360, 220)], PipelineConfig(), CompanionEndpoint(now_us=0), 0)
-    comp.tick(1_000_000)
+    comp.check_inputs(1_000_000)
     assert not [f for f in comp.stats.faults if "position" in f], comp.stats.faults
     assert "TCM: waiting for position" in comp.endpoint.statustexts_queued
     line = comp.status_line(1_000_000)

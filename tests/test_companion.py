@@ -68,7 +68,7 @@ def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
 def test_every_latency_figure_is_one_percentile(flight: Any) -> None:
     """The status line, TCM_PIPELINE_HEALTH and a run's summary read the latencies the
     same way (latency_percentile_ms: NumPy's linear interpolation)."""
-    from tcm_companion.service.plumbing import DaemonSummary
+    from tcm_companion.service.host import DaemonSummary
 
     lat = [5.0, 6.0, 7.0, 30.0]
     assert latency_percentile_ms(lat, 50) == pytest.approx(6.5)

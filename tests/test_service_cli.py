@@ -25,7 +25,7 @@ from tcm_companion import cli
 from tcm_companion.cli import sitl as sitl_cli
 from tcm_companion.cli import status_line
 from tcm_companion.cli.interrupts import RunSignals
-from tcm_companion.service.plumbing import run_length_text
+from tcm_companion.service.host import run_length_text
 
 
 @pytest.fixture(autouse=True)

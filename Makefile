@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 LOCK   := requirements.lock
 UV     := uv==0.13.9
 
-.PHONY: run demo test test-adversarial test-tools lint typecheck venv lock lua32 clean eval bench interop-env
+.PHONY: run demo test test-fast test-adversarial test-tools lint typecheck venv lock lua32 clean eval bench interop-env
 
 venv: $(STAMP)
 
@@ -34,7 +34,7 @@ $(STAMP): pyproject.toml $(LOCK)
 ## platform and Python >= 3.11, keeping the pinned versions that still fit. To move to newer
 ## releases: make lock LOCK_FLAGS=--upgrade (or LOCK_FLAGS='--upgrade-package numpy').
 ## Changing numpy, scipy or opencv-python-headless changes results in the last digits:
-## re-record the reference logs (tests/data/logs/README.md).
+## re-record the reference logs (tools/update_refs.py, tests/data/logs/README.md).
 lock:
 	@echo "make: resolving $(LOCK) from pyproject.toml with $(UV) (~10 s)"
 	@tmp=$$(mktemp -d) && trap 'rm -rf "$$tmp"' EXIT && \
@@ -61,7 +61,7 @@ lint: $(STAMP)
 ## What mypy checks by name (and whatever that imports): the science, the daemon and its
 ## SITL runs, the command line, the camera sources.
 TYPED := tcm_companion/core tcm_companion/service tcm_companion/sitl tcm_companion/cli \
-         tcm_companion/logsetup.py tcm_companion/flightlog/docs.py tcm_companion/flightlog/handle.py \
+         tcm_companion/flight_log_setup.py tcm_companion/flightlog/docs.py tcm_companion/flightlog/handle.py \
          tcm_companion/bench/daemon.py tcm_companion/io/cameras tcm_companion/io/sdnotify.py \
          tcm_companion/sim/sources.py tcm_companion/sim/scene/truth_camera.py
 
@@ -105,6 +105,14 @@ test-tools: $(STAMP)
 test: lint typecheck test-tools
 	$(BIN)/python -m compileall -q tcm_companion
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+
+## The fast lane while working: every test but the slow ones (real time, subprocesses,
+## socat, ArduCopter SITL, more than ~0.5 s of CPU: tests/conftest.py), in under a minute on
+## two cores. No lint, no type check, no tool installs; make test stays what CI runs.
+## (compileall: as for make test, above.)
+test-fast: $(STAMP)
+	$(BIN)/python -m compileall -q tcm_companion
+	$(BIN)/python -m pytest -n 2 -m "not slow" -q
 
 ## What an attacker or a careless user tries, each asserting nothing was lost: outputs over
 ## inputs, devices, FIFOs and symlinks; signals mid-write; a full disk; two flights in one

@@ -32,10 +32,10 @@ from .core.camera import (
 )
 from .core.pipeline import PipelineConfig
 from .flightlog.settings import LoggingConfig
-from .io.cameras.settings import CameraSettings
+from .io.cameras.settings import CameraSourceConfig
 from .service.daemon_config import RANGES as DAEMON_RANGES
 from .service.daemon_config import DaemonConfig
-from .service.endpoint_setup import MavlinkSettings
+from .service.endpoint_setup import MavlinkConfig
 
 log = logging.getLogger(__name__)
 
@@ -114,11 +114,11 @@ def _default_camera_model() -> CameraModel:
 class CameraConfig:
     """``[camera]``: the lens model the pipeline uses (the keys of a scenario's ``[camera]``:
     ``model``, ``width``, ``height``, ``mount_rpy_deg`` and the model's intrinsics) and
-    where its frames come from (:class:`~tcm_companion.io.cameras.settings.CameraSettings`:
+    where its frames come from (:class:`~tcm_companion.io.cameras.settings.CameraSourceConfig`:
     ``source``, ``device``, ``path`` …), in one table."""
 
     model: CameraModel = field(default_factory=_default_camera_model)
-    source: CameraSettings = field(default_factory=CameraSettings)
+    source: CameraSourceConfig = field(default_factory=CameraSourceConfig)
     name: str = "camera0"
 
 
@@ -157,11 +157,11 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
             msg = str(exc).replace(f"{where}.", _key_at(where, ""), 1)
             errors.append(ConfigError(msg))
             model = None
-    source: CameraSettings | None = None
+    source: CameraSourceConfig | None = None
     try:
-        source = build_dataclass(CameraSettings, source_keys, where)
+        source = build_dataclass(CameraSourceConfig, source_keys, where)
     except ConfigError as exc:
-        # CameraSettings names its fields "camera.x" (and "camera.front.x"); say where
+        # CameraSourceConfig names its fields "camera.x" (and "camera.front.x"); say where
         # they were written, once.
         def at(m: re.Match[str]) -> str:
             return _key_at(_table_at(where, m[1]) if m[1] else where, "")
@@ -169,8 +169,8 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
         for e in exc.errors:
             msg = re.sub(rf"{re.escape(where)}: camera\.(?:(front|back)\.)?", at, str(e), count=1)
             errors.append(ConfigError(msg, e.key))
-    sim_url = source_keys.get("sim_url", CameraSettings.sim_url)
-    if isinstance(sim_url, str) and sim_url:  # "" with sim_autopilot: CameraSettings says
+    sim_url = source_keys.get("sim_url", CameraSourceConfig.sim_url)
+    if isinstance(sim_url, str) and sim_url:  # "" with sim_autopilot: CameraSourceConfig says
         errors += _url_errors(sim_url, where, "sim_url", "camera.sim_url")
     _raise_all(errors)
     assert model is not None and source is not None and isinstance(name, str)
@@ -186,7 +186,7 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
 @dataclass(frozen=True)
 class AppConfig:
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
-    mavlink: MavlinkSettings = field(default_factory=MavlinkSettings)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
@@ -616,11 +616,11 @@ def _stage_tables() -> dict[type, str]:
 _RANGE_TABLES: dict[type, str] = {
     PipelineConfig: "",  # its stages are tables of their own: "classifier", ...
     **_stage_tables(),
-    MavlinkSettings: "mavlink",
-    typing.get_type_hints(MavlinkSettings)["endpoint"]: "mavlink.endpoint",
+    MavlinkConfig: "mavlink",
+    typing.get_type_hints(MavlinkConfig)["endpoint"]: "mavlink.endpoint",
     DaemonConfig: "daemon",
     SimConfig: "sim",
-    CameraSettings: "camera",
+    CameraSourceConfig: "camera",
     LoggingConfig: "logging",
 }
 
@@ -1084,7 +1084,7 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
     tables = {
         name: table(build_dataclass, cls, doc.get(name, {}), f"{where}: [{name}]")
         for name, cls in (
-            ("mavlink", MavlinkSettings),
+            ("mavlink", MavlinkConfig),
             ("daemon", DaemonConfig),
             ("sim", SimConfig),
             ("logging", LoggingConfig),

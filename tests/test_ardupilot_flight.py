@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from tcm_companion.config import AppConfig
-from tcm_companion.sim.scene.autopilot_camera import SceneSettings
+from tcm_companion.sim.scene.autopilot_camera import SceneConfig
 from tcm_companion.sitl.ardupilot import (
     APPLET,
     SITL_PARAMS,
@@ -77,7 +77,7 @@ def test_crossing_collision_course_brakes(flying: ArduPilotSitl, tmp_path: Path)
     # ... and our ADSB_VEHICLE for the moving ball (range from its known radius) reaches
     # AP_Avoidance, which rates it a threat (COLLISION from the autopilot, our ICAO id)
     plan = FlightPlanAP(
-        SceneSettings("crossing"),
+        SceneConfig("crossing"),
         heading_deg=0.0,
         companion_params=(("TCM_OUT_ADSB", 1), ("TCM_OBJ_RADIUS", 0.375)),
     )
@@ -93,7 +93,7 @@ def test_crossing_collision_course_brakes(flying: ArduPilotSitl, tmp_path: Path)
 
 
 def test_headon_brakes_although_the_state_is_unknown(flying: ArduPilotSitl, tmp_path: Path) -> None:
-    r = _fly(flying, FlightPlanAP(SceneSettings("headon"), heading_deg=180.0), tmp_path)
+    r = _fly(flying, FlightPlanAP(SceneConfig("headon"), heading_deg=180.0), tmp_path)
     # Head-on the looming is clean: the alarm comes when the ball is truly ~3 s away
     # (3.1-3.3 s in every flight measured). The crossing ball's alarm can still come early
     # (docs/ardupilot.md, "Where the method falls short"); the young-track case that read
@@ -111,7 +111,7 @@ def test_pilot_mode_change_makes_the_applet_stand_down(
     flying: ArduPilotSitl, tmp_path: Path
 ) -> None:
     plan = FlightPlanAP(
-        SceneSettings("headon"), heading_deg=0.0, pilot_mode="LOITER", pilot_after_s=0.3
+        SceneConfig("headon"), heading_deg=0.0, pilot_mode="LOITER", pilot_after_s=0.3
     )
     r = _fly(flying, plan, tmp_path)
     lines = "\n".join(r.lines())
@@ -134,7 +134,7 @@ def test_proximity_and_parameters_through_ardupilot(tmp_path: Path) -> None:
 
     async def scenario(sitl: ArduPilotSitl) -> dict[str, object]:
         config = AppConfig()
-        camera = AutopilotSimCamera(config.camera.model, sitl.serial2_url, SceneSettings("static"))
+        camera = AutopilotSimCamera(config.camera.model, sitl.serial2_url, SceneConfig("static"))
         out: dict[str, object] = {}
         async with daemon_on_sitl(config, sitl, camera, str(tmp_path)) as (task, endpoint):
             # the ground station reads our parameter through ArduPilot (component 191) ...

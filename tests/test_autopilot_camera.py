@@ -29,12 +29,12 @@ from tcm_companion.core.detection import Detector
 from tcm_companion.io.aio import monotonic_us
 from tcm_companion.io.cameras import CameraError, CameraReader, Frame
 from tcm_companion.io.cameras.base import CameraGone
-from tcm_companion.io.cameras.settings import CameraSettings, open_source
+from tcm_companion.io.cameras.settings import CameraSourceConfig, open_source
 from tcm_companion.io.transports import TransportClosed, open_transport
 from tcm_companion.mavlink import tcm_dialect as mav
 from tcm_companion.sim.scene.autopilot_camera import (
     AutopilotSimCamera,
-    SceneSettings,
+    SceneConfig,
     plan_launch,
 )
 from tcm_companion.sim.scene.render import Renderer
@@ -217,7 +217,7 @@ def _link_threads() -> list[threading.Thread]:
 # Geometry of the launch (pure)
 # --------------------------------------------------------------------------------------
 def test_crossing_launch_meets_the_vehicle_at_contact_from_the_right() -> None:
-    scene = SceneSettings("crossing", contact_s=7.0, ball_speed_mps=1.5, side_deg=90.0)
+    scene = SceneConfig("crossing", contact_s=7.0, ball_speed_mps=1.5, side_deg=90.0)
     p, v = np.array([3.0, -2.0, -10.0]), np.array([0.0, 2.0, 0.1])  # flying east, sinking
     launch = plan_launch(scene, 1_000_000, p, v)
     assert launch.contact_us == 8_000_000
@@ -237,14 +237,14 @@ def test_crossing_launch_meets_the_vehicle_at_contact_from_the_right() -> None:
 
 
 def test_headon_ball_sits_on_the_path_slightly_below() -> None:
-    scene = SceneSettings("headon", contact_s=4.0)
+    scene = SceneConfig("headon", contact_s=4.0)
     launch = plan_launch(scene, 0, np.array([0.0, 0.0, -5.0]), np.array([1.0, 1.0, 0.0]))
     np.testing.assert_allclose(launch.ball.centre_ned_m(3.0), [4.0, 4.0, -4.8])
     assert not launch.ball.moving
     with pytest.raises(ValueError, match="horizontal"):
         plan_launch(scene, 0, np.zeros(3), np.array([0.0, 0.0, 1.0]))
     with pytest.raises(ValueError, match="nothing to launch"):
-        plan_launch(SceneSettings("static"), 0, np.zeros(3), np.ones(3))
+        plan_launch(SceneConfig("static"), 0, np.zeros(3), np.ones(3))
 
 
 # --------------------------------------------------------------------------------------
@@ -252,7 +252,7 @@ def test_headon_ball_sits_on_the_path_slightly_below() -> None:
 # --------------------------------------------------------------------------------------
 def test_registry_builds_the_source_from_settings() -> None:
     register_sim_sources()
-    s = CameraSettings(
+    s = CameraSourceConfig(
         source="sim_autopilot",
         sim_url="udpin:0.0.0.0:14560",
         sim_scene="headon",
@@ -265,9 +265,9 @@ def test_registry_builds_the_source_from_settings() -> None:
     assert (src.width, src.height, src.fps, src.url) == (180, 110, 20.0, "udpin:0.0.0.0:14560")
     assert src.scene.kind == "headon" and src.scene.contact_s == 5.0 and src.heading_deg == 25.0
     with pytest.raises(CameraError, match=r"camera\.sim_url"):
-        open_source(CameraSettings(source="sim_autopilot", sim_url="tcp:nohost"), SMALL)
+        open_source(CameraSourceConfig(source="sim_autopilot", sim_url="tcp:nohost"), SMALL)
     with pytest.raises(CameraError, match=r"camera\.sim_url"):
-        open_source(CameraSettings(source="sim_autopilot", sim_url="bogus:1:2"), SMALL)
+        open_source(CameraSourceConfig(source="sim_autopilot", sim_url="bogus:1:2"), SMALL)
 
 
 @pytest.mark.parametrize(
@@ -285,7 +285,7 @@ def test_registry_builds_the_source_from_settings() -> None:
 )
 def test_settings_errors_name_the_key(kwargs: dict[str, Any], key: str) -> None:
     with pytest.raises(ValueError, match=rf"camera\.{key}"):
-        CameraSettings(**kwargs)
+        CameraSourceConfig(**kwargs)
 
 
 def test_settings_load_through_the_config_loader() -> None:
@@ -296,7 +296,7 @@ def test_settings_load_through_the_config_loader() -> None:
         "sim_scene": "static",
         "sim_static_balls": [[5, 1, -1.0, 0.5], [0.0, -3.0, -2.0, 0.375]],
     }
-    s = build_dataclass(CameraSettings, table, "camera")
+    s = build_dataclass(CameraSourceConfig, table, "camera")
     assert s.sim_static_balls == ((5.0, 1.0, -1.0, 0.5), (0.0, -3.0, -2.0, 0.375))
     register_sim_sources()
     src = open_source(s, SMALL)
@@ -317,7 +317,7 @@ def _textures() -> None:
 def test_frames_on_the_tick_grid_no_pose_before_the_ekf_origin_then_images() -> None:
     frames: list[Frame] = []
     with peer("TS", ekf_origin_delay_us=1_500_000) as p:
-        cam = AutopilotSimCamera(SMALL, p.url, SceneSettings("static"), fps=25.0)
+        cam = AutopilotSimCamera(SMALL, p.url, SceneConfig("static"), fps=25.0)
         reader = CameraReader(cam, 0, frames.append)
         reader.start()
         time.sleep(3.5)
@@ -356,7 +356,7 @@ def test_rendering_matches_the_mock_truth() -> None:
     """The image equals a render at the mock's exact pose; the ball is where it projects."""
     model = Equirectangular(width=360, height=220)
     ball_ned = (1.5, 4.0, -1.0)  # 4 m east of the TS track's middle, 1 m up
-    scene = SceneSettings("static", static_balls=((*ball_ned, 0.375),))
+    scene = SceneConfig("static", static_balls=((*ball_ned, 0.375),))
     with peer("TS", ekf_origin_delay_us=0, noise=0.0) as p:
         cam = AutopilotSimCamera(model, p.url, scene, noise_dn=0.0)
         cam.open()
@@ -434,7 +434,7 @@ def _check_in_image(
 
 @pytest.mark.xdist_group("sitl")
 def test_crossing_ball_launches_on_a_collision_course() -> None:
-    scene = SceneSettings("crossing", contact_s=4.0, ball_speed_mps=1.5, side_deg=90.0)
+    scene = SceneConfig("crossing", contact_s=4.0, ball_speed_mps=1.5, side_deg=90.0)
     with peer("COLLISION", ekf_origin_delay_us=200_000) as p:
         cam = AutopilotSimCamera(SMALL, p.url, scene, heading_deg=25.0)
         cam.open()
@@ -478,7 +478,7 @@ def test_crossing_ball_launches_on_a_collision_course() -> None:
 
 @pytest.mark.xdist_group("sitl")
 def test_headon_ball_is_placed_ahead_on_the_path() -> None:
-    scene = SceneSettings("headon", contact_s=4.0)
+    scene = SceneConfig("headon", contact_s=4.0)
     with peer("HEADON", ekf_origin_delay_us=200_000) as p:
         cam = AutopilotSimCamera(SMALL, p.url, scene, heading_deg=25.0)
         cam.open()
@@ -510,7 +510,7 @@ def test_headon_ball_is_placed_ahead_on_the_path() -> None:
 @pytest.mark.xdist_group("sitl")
 def test_survives_the_autopilot_going_away_and_rebooting() -> None:
     with peer("TS", kind="tcp", ekf_origin_delay_us=300_000) as p:
-        cam = AutopilotSimCamera(SMALL, p.url, SceneSettings("static"), fps=25.0)
+        cam = AutopilotSimCamera(SMALL, p.url, SceneConfig("static"), fps=25.0)
         cam.open()
         try:
             _read_until(cam, lambda im, t: im is not None, 5.0)

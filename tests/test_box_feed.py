@@ -12,11 +12,9 @@ boxes are the simulated TS flight's true ones (the detector simulator without no
 from __future__ import annotations
 
 import dataclasses
-import heapq
 import json
 import math
 import re
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -25,11 +23,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tcm_companion.config import ConfigError, config_from_dict
-from tcm_companion.core.camera import Equirectangular, Pinhole
+from tcm_companion.core.camera import Pinhole
 from tcm_companion.core.detection import Box, DetectionConfig
 from tcm_companion.core.pipeline import PipelineConfig
 from tcm_companion.mavlink import tcm_dialect as d
-from tcm_companion.mavlink.endpoint import CompanionEndpoint, TelemetryReceived
+from tcm_companion.mavlink.endpoint import CompanionEndpoint
 from tcm_companion.replay.scenario import boxes_by_frame
 from tcm_companion.service.box_feed import (
     MAX_BOXES,
@@ -41,14 +39,12 @@ from tcm_companion.service.box_feed import (
 )
 from tcm_companion.service.companion import Companion
 from tcm_companion.service.daemon_config import DaemonConfig
-from tcm_companion.service.outputs import FrameProcessed
 from tcm_companion.sim.scene.detector_sim import DetectorSimConfig, simulate_detections
 from tcm_companion.sim.scene.export import SimulatedScenario
-from tcm_companion.sim.scene.scenarios import flight_plan
 
-CAMERA = Equirectangular(360, 220)
+from .helpers import CAMERA, FEED, FedDriver, simulated_flight
+
 PINHOLE = Pinhole(640, 480, fx=320.0, fy=320.0, cx=320.0, cy=240.0)
-FEED = "udp:127.0.0.1:14660"
 
 
 def msg(**over: Any) -> bytes:
@@ -206,8 +202,7 @@ def test_the_configuration_names_the_bad_key() -> None:
 # -- the Companion fed live -------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def flight() -> tuple[SimulatedScenario, list[np.ndarray], dict[int, list[Box]]]:
-    scenario = SimulatedScenario(flight_plan("TS", duration_s=6.0), CAMERA)
-    frames = [img for _, _, img in scenario.iter_frames()]
+    scenario, frames = simulated_flight(6.0)
     exact = DetectorSimConfig(
         centre_sigma_px=0.0, scale_sigma=0.0, miss_probability=0.0, false_per_frame=0.0
     )
@@ -216,107 +211,7 @@ def flight() -> tuple[SimulatedScenario, list[np.ndarray], dict[int, list[Box]]]
     return scenario, frames, boxes
 
 
-def decode(data: bytes) -> list[Any]:
-    mav = d.MAVLink(None)
-    mav.robust_parsing = True
-    return [m for m in (mav.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
-
-
-class FedDriver:
-    """Feeds a Companion with a live box feed, in time order (module docstring).
-
-    ``datagram(i, t_capture)`` is what the feeder sends for frame ``i`` (None: nothing);
-    ``latency_us`` after the capture, while ``feeding(i)``."""
-
-    def __init__(
-        self, flight: Any, config: DaemonConfig | None = None, *, warm: bool = True
-    ) -> None:
-        self.scenario, self.frames, self.boxes = flight
-        t0 = int(self.scenario.frame_times_us[0]) - 500_000
-        self.endpoint = CompanionEndpoint(now_us=t0)
-        pipeline = dataclasses.replace(PipelineConfig(), detection=DetectionConfig(backend="boxes"))
-        self.companion = Companion(
-            [CAMERA],
-            pipeline,
-            self.endpoint,
-            t0,
-            config or DaemonConfig(box_feed=FEED),
-            ["front"],
-        )
-        self.now = t0
-        self.events: list[tuple[int, int, str, Any]] = []  # (time, order, kind, what)
-        self.n = 0
-        for s in self.scenario.telemetry:
-            self._at(s.recv_us, "telemetry", s)
-        self.processed: list[FrameProcessed] = []
-        self.sent: list[Any] = []
-        self.replies: list[str] = []
-        if warm:
-            # The feeder is there before the first frame (an empty message about an
-            # earlier frame): from the first frame on, frames wait for their boxes.
-            t = int(self.scenario.frame_times_us[0])
-            self._at(t - 100_000, "datagram", encode_box_message(0, t - 200_000, []))
-
-    def _at(self, t: int, kind: str, what: Any) -> None:
-        heapq.heappush(self.events, (int(t), self.n, kind, what))
-        self.n += 1
-
-    def frames_with_boxes(
-        self,
-        first: int,
-        last: int,
-        latency_us: int = 60_000,
-        datagram: Callable[[int, int], bytes | None] | None = None,
-    ) -> None:
-        def default(i: int, t: int) -> bytes:
-            return encode_box_message("front", t, self.boxes.get(i, []))
-
-        make = datagram or default
-        for i in range(first, last):
-            t = int(self.scenario.frame_times_us[i])
-            self._at(t + 1_000, "frame", (i, t))
-            data = make(i, t)
-            if data is not None:
-                self._at(t + latency_us, "datagram", data)
-
-    def run_until(self, until_us: int) -> None:
-        comp = self.companion
-        while True:
-            due = max(comp.next_deadline_us(), self.now)
-            t_ev = self.events[0][0] if self.events else math.inf
-            t = min(due, t_ev)
-            if t > until_us:
-                break
-            self.now = int(t)
-            if t_ev <= due:
-                _, _, kind, what = heapq.heappop(self.events)
-                if kind == "telemetry":
-                    self.endpoint.telemetry_clock.observe(what.time_boot_us, what.recv_us)
-                    comp.on_events([TelemetryReceived(what)], self.now)
-                elif kind == "frame":
-                    i, t_cap = what
-                    comp.on_frame(0, self.frames[i], t_cap, self.now)
-                elif kind == "mavlink":
-                    outs = comp.receive_data(what, self.now)
-                    self.replies += [type(o).__name__ for o in outs]
-                else:
-                    self.replies.append(comp.on_box_datagram(what, self.now))
-            else:
-                outs = comp.process_due(self.now)
-                self.processed += [o for o in outs if isinstance(o, FrameProcessed)]
-                self.sent += decode(comp.data_to_send())
-        self.now = max(self.now, until_us)
-
-    def t(self, i: int) -> int:
-        return int(self.scenario.frame_times_us[i])
-
-    def statuses(self) -> list[Any]:
-        return [m for m in self.sent if m.get_type() == "TCM_OBJECT_STATUS"]
-
-    def texts(self) -> list[str]:
-        return [m.text for m in self.sent if m.get_type() == "STATUSTEXT"]
-
-
+@pytest.mark.slow  # over a second of CPU
 def test_frames_wait_for_boxes_that_come_later_than_the_next_frame(flight: Any) -> None:
     """A detector 60 ms behind a 25-Hz camera: every frame waits for its boxes (a newer
     frame does not push out one still waiting), none is dropped, each is processed with
@@ -565,6 +460,7 @@ _message_like = st.fixed_dictionaries(
 )
 
 
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=300, deadline=None)
 @given(
     st.one_of(
@@ -649,6 +545,7 @@ _hostile_datagram = st.one_of(
 )
 
 
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=300, deadline=None)
 @given(st.lists(_hostile_datagram, min_size=1, max_size=6))
 def test_hostile_datagrams_are_refused_and_counted_never_raised(datagrams: list[bytes]) -> None:
@@ -670,6 +567,7 @@ def test_hostile_datagrams_are_refused_and_counted_never_raised(datagrams: list[
     assert comp.on_box_datagram(good, 2_000_000) == "accepted"
 
 
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=200, deadline=None)
 @given(st.lists(_message_like.map(lambda x: json.dumps(x).encode()), max_size=8))
 def test_the_companion_takes_any_datagrams_and_counts_each(datagrams: list[bytes]) -> None:

@@ -18,6 +18,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from tcm_companion.config import config_from_dict
 from tcm_companion.mavlink import tcm_dialect as d
 from tcm_companion.sim.scene.truth import coverage_box_px, is_full_panorama
@@ -85,6 +87,7 @@ def tracking_camera(routed: list[tuple[int, int, bytes]]) -> Any:
     return factory
 
 
+@pytest.mark.slow  # a SITL run, seconds of CPU
 def test_a_tracking_camera_over_the_mock_autopilot_feeds_the_boxes(tmp_path: Path) -> None:
     model = VirtualTimeModel()
     config = config_from_dict(

@@ -42,14 +42,14 @@ from tcm_companion.io.cameras.opencv import (
 )
 from tcm_companion.io.cameras.scenario_source import ScenarioSource
 from tcm_companion.io.cameras.settings import (
-    CameraSettings,
-    FisheyeCameraSettings,
+    CameraSourceConfig,
+    FisheyeCameraConfig,
     open_source,
 )
 from tcm_companion.sim.scene.truth_camera import SimulatedCamera
 from tcm_companion.sim.sources import register_sim_sources
 
-from .conftest import example_path
+from .helpers import example_path
 
 W, H = 64, 48  # video / frames-directory test images
 FPS = 25.0
@@ -766,14 +766,14 @@ def test_dual_fisheye_open_failure_closes_the_other() -> None:
         ({"source": "device", "device": ""}, "camera.device"),
         ({"source": "webcam"}, "camera.source"),
         (
-            {"source": "dual_fisheye", "back": FisheyeCameraSettings(device="0")},
+            {"source": "dual_fisheye", "back": FisheyeCameraConfig(device="0")},
             "camera.back.device",
         ),
     ],
 )
 def test_settings_errors_name_the_field(kwargs: dict[str, object], field: str) -> None:
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):
-        CameraSettings(**kwargs)  # type: ignore[arg-type]
+        CameraSourceConfig(**kwargs)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(
@@ -788,7 +788,7 @@ def test_settings_errors_name_the_field(kwargs: dict[str, object], field: str) -
 )
 def test_fisheye_settings_errors_name_the_field(kwargs: dict[str, object], field: str) -> None:
     with pytest.raises(ValueError, match=field):
-        FisheyeCameraSettings(**kwargs)  # type: ignore[arg-type]
+        FisheyeCameraConfig(**kwargs)  # type: ignore[arg-type]
 
 
 def test_settings_load_through_the_config_loader() -> None:
@@ -800,13 +800,13 @@ def test_settings_load_through_the_config_loader() -> None:
         "front": {"device": "/dev/video0", "dist": [0.01, 0.0, 0.0, 0.0]},
         "back": {"device": "/dev/video2", "mount_rpy_deg": [0, 0, 180]},
     }
-    s = build_dataclass(CameraSettings, table, "camera")
+    s = build_dataclass(CameraSourceConfig, table, "camera")
     assert s.fps == 30.0 and s.front.dist == (0.01, 0.0, 0.0, 0.0)
     assert s.back.mount_rpy_deg == (0.0, 0.0, 180.0)
     with pytest.raises(ConfigError, match=r"camera\.source"):
-        build_dataclass(CameraSettings, {"source": "webcam"}, "camera")
+        build_dataclass(CameraSourceConfig, {"source": "webcam"}, "camera")
     with pytest.raises(ConfigError, match=r"camera\.fps"):
-        build_dataclass(CameraSettings, {"fps": -1}, "camera")
+        build_dataclass(CameraSourceConfig, {"fps": -1}, "camera")
 
 
 def test_the_simulators_sources_are_registered_by_the_simulator(
@@ -822,11 +822,13 @@ def test_the_simulators_sources_are_registered_by_the_simulator(
     cam = Equirectangular(width=W, height=H)
     for kind in ("sim", "sim_autopilot"):
         with pytest.raises(CameraError, match=rf"'{kind}'.*tcm_companion\.sim\.sources"):
-            open_source(CameraSettings(source=kind), cam)
+            open_source(CameraSourceConfig(source=kind), cam)
     with pytest.raises(ValueError, match="webcam"):
         settings.register_source("webcam", lambda *_: FakeLive())
     register_sim_sources()
-    assert isinstance(open_source(CameraSettings(source="sim_autopilot"), cam), AutopilotSimCamera)
+    assert isinstance(
+        open_source(CameraSourceConfig(source="sim_autopilot"), cam), AutopilotSimCamera
+    )
     register_sim_sources()  # again: idempotent
     assert {"sim", "sim_autopilot"} <= set(settings.BUILDERS)
 
@@ -835,34 +837,38 @@ def test_open_source_registry(media: dict[str, Path], tmp_path: Path) -> None:
     register_sim_sources()
     cam = Equirectangular(width=W, height=H)
     with pytest.raises(CameraError, match="mock autopilot"):
-        open_source(CameraSettings(source="sim"), cam)
-    sim = open_source(CameraSettings(source="sim", sim_seed=2), SIM_CAMERA, truth_us=_fixed_truth)
+        open_source(CameraSourceConfig(source="sim"), cam)
+    sim = open_source(
+        CameraSourceConfig(source="sim", sim_seed=2), SIM_CAMERA, truth_us=_fixed_truth
+    )
     assert isinstance(sim, SimulatedCamera) and (sim.width, sim.height) == (120, 74)
-    dev = open_source(CameraSettings(source="device", device="/dev/video3", exposure=50.0), cam)
+    dev = open_source(CameraSourceConfig(source="device", device="/dev/video3", exposure=50.0), cam)
     assert isinstance(dev, OpenCVDevice) and dev.exposure == 50.0
     assert isinstance(
-        open_source(CameraSettings(source="gstreamer", pipeline="x ! appsink"), cam),
+        open_source(CameraSourceConfig(source="gstreamer", pipeline="x ! appsink"), cam),
         GStreamerSource,
     )
     missing = str(tmp_path / "missing.avi")
     with pytest.raises(CameraError, match=r"camera\.path: no such file"):
-        open_source(CameraSettings(source="file", path=missing), cam)
+        open_source(CameraSourceConfig(source="file", path=missing), cam)
     video = open_source(
-        CameraSettings(source="file", path=str(media["video"]), realtime=False), cam
+        CameraSourceConfig(source="file", path=str(media["video"]), realtime=False), cam
     )
     assert isinstance(video, VideoFileSource) and not video.realtime
-    frames = open_source(CameraSettings(source="frames", path=str(media["frames"]), fps=10.0), cam)
+    frames = open_source(
+        CameraSourceConfig(source="frames", path=str(media["frames"]), fps=10.0), cam
+    )
     assert isinstance(frames, FramesDirSource) and frames.fps == 10.0
     with pytest.raises(CameraError, match=r"camera\.path: no such directory"):
-        open_source(CameraSettings(source="frames", path=missing), cam)
+        open_source(CameraSourceConfig(source="frames", path=missing), cam)
     pinhole_dir = str(example_path("EX-PINHOLE"))
     with pytest.raises(CameraError, match="640x480"):
-        open_source(CameraSettings(source="scenario", path=pinhole_dir), cam)
+        open_source(CameraSourceConfig(source="scenario", path=pinhole_dir), cam)
     pin = Pinhole(width=640, height=480, fx=320.0, fy=320.0, cx=320.0, cy=240.0)
     assert isinstance(
-        open_source(CameraSettings(source="scenario", path=pinhole_dir), pin), ScenarioSource
+        open_source(CameraSourceConfig(source="scenario", path=pinhole_dir), pin), ScenarioSource
     )
-    dual = CameraSettings(source="dual_fisheye")
+    dual = CameraSourceConfig(source="dual_fisheye")
     with pytest.raises(CameraError, match="equirectangular"):
         open_source(dual, pin)
     rig = open_source(dual, Equirectangular(width=180, height=110))

@@ -64,6 +64,7 @@ def _walk(
 
 
 # -- import cost -------------------------------------------------------------------------
+@pytest.mark.slow  # a subprocess
 def test_building_the_parser_and_help_import_nothing_heavy() -> None:
     """``-X importtime`` lists every module imported; none of HEAVY may be among them,
     for the parser and for every command's --help (a test that fails, not a timing)."""
@@ -186,6 +187,7 @@ def test_the_readme_lists_every_command_and_option() -> None:
                 assert any(o in usage[name] for o in opts), f"README: {name} lacks {opts}"
 
 
+@pytest.mark.slow  # a subprocess
 def test_python_m_and_version() -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "tcm_companion", "--version"],
@@ -225,6 +227,7 @@ def test_every_command_reads_the_configuration_the_same_way(
     assert seed("--config", str(other), "--set", "sim.seed=4") == 4
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("command", sorted(CONFIG_COMMANDS))
 @pytest.mark.parametrize("how", ["environment", "--set", "--config"])
 def test_every_command_refuses_a_bad_configuration(

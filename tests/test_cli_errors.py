@@ -84,6 +84,7 @@ def test_a_box_feed_host_that_is_not_one_is_a_config_error() -> None:
         load_config(None, sets=["detection.backend=boxes", "daemon.box_feed=udp:999.0.0.1:14660"])
 
 
+@pytest.mark.slow  # a subprocess
 def test_run_with_a_bad_url_says_so_in_one_line(tmp_path: Path) -> None:
     """The command as an integrator types it: exit 2, one line, no traceback."""
     proc = subprocess.run(
@@ -177,6 +178,7 @@ def _daemon_args(tmp_path: Path) -> list[str]:
     ]
 
 
+@pytest.mark.slow  # a subprocess
 @pytest.mark.parametrize("what", ["mavlink", "box_feed", "mock-autopilot"])
 def test_a_udp_port_in_use_is_one_line_naming_it_and_its_holder(what: str, tmp_path: Path) -> None:
     """It was a TransportOpenError traceback ("could not bind to local_addr"), and for the
@@ -281,11 +283,12 @@ def test_running_out_of_memory_is_one_line(
 
 
 # -- 4. a camera that never produced a frame is not a success ---------------------------------------
+@pytest.mark.slow  # a subprocess
 def test_a_file_that_is_not_a_video_is_refused_at_start_like_a_missing_one(tmp_path: Path) -> None:
     """It was retried for ever (exit 0, 0 frames) while a missing file was refused."""
     from tcm_companion.core.camera import Equirectangular
     from tcm_companion.io.cameras.base import CameraError
-    from tcm_companion.io.cameras.settings import CameraSettings, open_source
+    from tcm_companion.io.cameras.settings import CameraSourceConfig, open_source
 
     junk = tmp_path / "flight.mp4"
     junk.write_text("not a video\n")
@@ -293,9 +296,9 @@ def test_a_file_that_is_not_a_video_is_refused_at_start_like_a_missing_one(tmp_p
     empty.mkdir()
     cam = Equirectangular(360, 220)
     with pytest.raises(CameraError, match=r"^camera\.path: .*flight\.mp4: OpenCV cannot open"):
-        open_source(CameraSettings(source="file", path=str(junk)), cam)
+        open_source(CameraSourceConfig(source="file", path=str(junk)), cam)
     with pytest.raises(CameraError, match=r"^camera\.path: .*frames: no images"):
-        open_source(CameraSettings(source="frames", path=str(empty)), cam)
+        open_source(CameraSourceConfig(source="frames", path=str(empty)), cam)
 
     proc = _run_cli(
         [*_daemon_args(tmp_path), "--set", "camera.source=file", "--set", f"camera.path={junk}"],
@@ -306,6 +309,7 @@ def test_a_file_that_is_not_a_video_is_refused_at_start_like_a_missing_one(tmp_p
     assert f"error: camera.path: {junk}: OpenCV cannot open this video" in proc.stderr
 
 
+@pytest.mark.slow  # a subprocess
 def test_run_whose_camera_never_produced_a_frame_fails_at_the_end(tmp_path: Path) -> None:
     """``run --duration 8`` with no camera at all exited 0."""
     device = tmp_path / "video7"  # no such device
@@ -341,6 +345,7 @@ def test_a_camera_whose_every_image_was_rejected_never_produced_a_frame() -> Non
 
 
 # -- 5. a setting the simulated run does not use is named, not dropped in silence -------------------
+@pytest.mark.slow  # a subprocess
 @pytest.mark.parametrize("command", ["run", "sitl"])
 @pytest.mark.parametrize("url", ["udpout:10.0.0.5:14550", ""])
 def test_mavlink_url_with_the_simulator_is_said_to_be_ignored(
@@ -372,6 +377,7 @@ def test_mavlink_url_with_the_simulator_is_said_to_be_ignored(
 # -- 6. source = "scenario" takes the camera the scenario declares -----------------------------------
 
 
+@pytest.mark.slow  # a subprocess
 def test_run_on_a_scenario_takes_its_camera_model_and_says_so(tmp_path: Path) -> None:
     """It refused: "scenario ... has 640x480 frames but the camera model is 360x220",
     although the scenario declares its camera (scenario.toml [camera])."""
@@ -425,6 +431,7 @@ def test_the_scenario_camera_replaces_the_configured_one(caplog: pytest.LogCaptu
 # -- 7. latency is never negative ------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a subprocess
 def test_frames_read_as_fast_as_possible_have_no_negative_latency(tmp_path: Path) -> None:
     """``realtime = false`` gave "latency p99 -79.09 ms" (p50 -7940 ms): the files'
     series of capture times (anchor + i / fps) ran ahead of the monotonic clock the
@@ -581,6 +588,7 @@ WITHOUT_TOOLS = {
 }
 
 
+@pytest.mark.slow  # a subprocess
 @pytest.mark.parametrize("name", list(WITHOUT_TOOLS))
 def test_every_command_that_draws_nothing_works_without_the_tools_extra(
     name: str, site_without_tools: Path, tmp_path: Path
@@ -601,6 +609,7 @@ def test_every_command_that_draws_nothing_works_without_the_tools_extra(
     assert says in proc.stdout + proc.stderr
 
 
+@pytest.mark.slow  # a subprocess
 def test_plot_without_the_tools_extra_names_the_extra(
     site_without_tools: Path, tmp_path: Path
 ) -> None:
@@ -632,6 +641,7 @@ def damaged_scenarios(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Pat
     return out
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("command", ["replay", "eval", "plot"])
 def test_a_missing_frame_is_refused_and_an_unreadable_one_skipped_by_every_command(
     command: str,
@@ -683,6 +693,7 @@ def test_the_docs_say_what_the_commands_do_with_damaged_frames() -> None:
 
 
 # -- 11. the options each command should have, and its own usage for one it does not --------------
+@pytest.mark.slow  # a subprocess
 def test_sitl_has_no_status_as_run_does(tmp_path: Path) -> None:
     base = [
         *("sitl", "--clock", "virtual", "--duration", "2", "--min-accuracy", "0"),
@@ -696,6 +707,7 @@ def test_sitl_has_no_status_as_run_does(tmp_path: Path) -> None:
     assert "objects " not in quiet.stderr and "fps |" not in quiet.stderr
 
 
+@pytest.mark.slow  # a subprocess
 def test_sim_export_has_quiet(tmp_path: Path) -> None:
     base = ["sim", "export", "TS", "OUT", "--duration", "2.4", "--resolution", "64x40"]
     loud = _run_cli(base, tmp_path)
@@ -771,7 +783,7 @@ def test_position_before_the_ekf_origin_is_waiting_not_a_fault() -> None:
     assert (st.problem, st.fault) == ("position stale", True)
 
     comp = Companion([Equirectangular(360, 220)], PipelineConfig(), CompanionEndpoint(now_us=0), 0)
-    comp.tick(1_000_000)
+    comp.check_inputs(1_000_000)
     assert not [f for f in comp.stats.faults if "position" in f], comp.stats.faults
     assert "TCM: waiting for position" in comp.endpoint.statustexts_queued
     line = comp.status_line(1_000_000)
@@ -791,6 +803,7 @@ def test_the_first_status_line_says_starting_not_zero_fps() -> None:
     assert "|  0.0 fps |" in comp.status_line(2_500_000)
 
 
+@pytest.mark.slow  # a subprocess
 def test_a_sitl_run_like_make_run_reports_no_start_up_fault(tmp_path: Path) -> None:
     proc = _run_cli(
         [
@@ -868,6 +881,7 @@ HOSTILE = [
 ]
 
 
+@pytest.mark.slow  # a subprocess
 @pytest.mark.parametrize(
     ("args", "says"), HOSTILE, ids=lambda v: " ".join(v)[:60] if isinstance(v, list) else None
 )
@@ -919,6 +933,7 @@ def test_hostile_arguments_are_one_line_and_exit_2(
     assert len(errors) == 1 and says in errors[0], err[-2000:]
 
 
+@pytest.mark.slow  # a subprocess
 def test_mock_autopilot_stops_on_sigterm_while_its_link_is_down(tmp_path: Path) -> None:
     """``mock-autopilot --connect serial:/dev/nonexistent`` waited for the link to come
     up whatever signal came: only SIGKILL ended it."""

@@ -35,6 +35,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_replay_never_replaces_an_output_unless_forced(scenario: Path, tmp_path: Path) -> None:
     out = tmp_path / "results.csv"
     # an earlier run's results (--force replaces only a results CSV: issue 24)
@@ -49,6 +50,7 @@ def test_replay_never_replaces_an_output_unless_forced(scenario: Path, tmp_path:
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".results.csv")]
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_unreadable_frame_is_skipped_reported_and_unknown(
     scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -128,6 +130,7 @@ def test_atomic_helpers(tmp_path: Path) -> None:
     assert sorted(x.name for x in tmp_path.iterdir()) == ["a.txt"]
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_eval_skips_an_unreadable_frame_and_says_so(
     scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -167,6 +167,7 @@ PLACES = [
 ]
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("grey", sorted(GREYS_BGR))
 @pytest.mark.parametrize(("cam_name", "az", "el", "alpha"), PLACES)
 def test_grey_and_white_balls_are_found_at_their_size(
@@ -195,6 +196,7 @@ def test_grey_and_white_balls_are_found_at_their_size(
         assert ColourDetector(cam).detect(img) == []
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_black_object_is_not_the_lens_s_black_surround() -> None:
     """A black ball (its pixels at or below ``black_level``) in the middle of the frame
     does not touch the border: the surround check counts black pixels outside the blob

@@ -17,32 +17,22 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tcm_companion.core.camera import Equirectangular
 from tcm_companion.core.pipeline import Pipeline, PipelineConfig
 from tcm_companion.core.telemetry import AttitudeSample, PositionSample
 from tcm_companion.mavlink import tcm_dialect as d
-from tcm_companion.mavlink.endpoint import CompanionEndpoint, TelemetryReceived, TelemetryRejected
+from tcm_companion.mavlink.endpoint import CompanionEndpoint, TelemetryReceived
 from tcm_companion.service.companion import Companion
 from tcm_companion.service.daemon_config import DaemonConfig
 from tcm_companion.service.health import latency_percentile_ms
-from tcm_companion.service.outputs import FrameProcessed, HealthChecked, ParamsChanged
+from tcm_companion.service.outputs import FrameProcessed, ParamsChanged
 from tcm_companion.sim.scene.export import SimulatedScenario
-from tcm_companion.sim.scene.scenarios import flight_plan
 
-CAMERA = Equirectangular(360, 220)
+from .helpers import CAMERA, Driver, decode, simulated_flight
 
 
 @pytest.fixture(scope="module")
 def flight() -> tuple[SimulatedScenario, list[np.ndarray]]:
-    scenario = SimulatedScenario(flight_plan("TS", duration_s=5.0), CAMERA)
-    frames = [img for _, _, img in scenario.iter_frames()]
-    return scenario, frames
-
-
-def decode(data: bytes) -> list[Any]:
-    mav = d.MAVLink(None)
-    mav.robust_parsing = True
-    return [m for m in (mav.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
+    return simulated_flight(5.0)
 
 
 def gcs_bytes(msg: Any) -> bytes:
@@ -51,99 +41,7 @@ def gcs_bytes(msg: Any) -> bytes:
     return bytes(msg.pack(mav))
 
 
-class Driver:
-    """Feeds a companion like the daemon, in time order: telemetry at its receive time,
-    each frame 1 ms after capture, and ``process_due`` whenever it is due."""
-
-    def __init__(
-        self,
-        scenario: SimulatedScenario,
-        frames: list[np.ndarray],
-        config: DaemonConfig | None = None,
-        **companion_kw: Any,
-    ) -> None:
-        self.scenario = scenario
-        self.frames = frames
-        self.telemetry = sorted(scenario.telemetry, key=lambda s: s.recv_us)
-        t0 = int(scenario.frame_times_us[0]) - 500_000
-        self.endpoint = CompanionEndpoint(now_us=t0)
-        self.companion = Companion(
-            [CAMERA], PipelineConfig(), self.endpoint, t0, config or DaemonConfig(), **companion_kw
-        )
-        self.now = t0
-        self.j = 0
-        self.sent: list[Any] = []
-        self.outputs: list[Any] = []
-        self.results: list[Any] = []  # per frame processed: its result (None: it failed)
-        self.keep: Any = lambda s: True
-        self.nan_attitude = False
-
-    # -- the event loop ----------------------------------------------------------------
-    def _telemetry(self, s: Any) -> None:
-        if not self.keep(s):
-            return
-        if self.nan_attitude and isinstance(s, AttitudeSample):
-            self.companion.on_events([TelemetryRejected("attitude", "NaN")], s.recv_us)
-            return
-        # As the endpoint does when it receives telemetry: its clock fit.
-        self.endpoint.telemetry_clock.observe(s.time_boot_us, s.recv_us)
-        self.companion.on_events([TelemetryReceived(s)], s.recv_us)
-
-    def turn(self, now: int) -> list[Any]:
-        outs = self.companion.process_due(now)
-        self.outputs += outs
-        self.results += [o.result for o in outs if isinstance(o, FrameProcessed)]
-        self.sent += decode(self.companion.data_to_send())
-        return outs
-
-    def advance(self, until_us: int) -> None:
-        """Telemetry arrivals and the companion's deadlines up to ``until_us``, in order."""
-        while True:
-            tel = self.telemetry[self.j].recv_us if self.j < len(self.telemetry) else math.inf
-            due = max(self.companion.next_deadline_us(), self.now)
-            t = min(tel, due)
-            if t > until_us:
-                break
-            self.now = int(t)
-            if tel <= due:
-                self.j += 1
-                self._telemetry(self.telemetry[self.j - 1])
-            else:
-                self.turn(self.now)
-        self.now = max(self.now, until_us)
-
-    def run(self, first: int, last: int, keep: Any = None, nan_attitude: bool = False) -> None:
-        self.keep = keep or (lambda s: True)
-        self.nan_attitude = nan_attitude
-        for i in range(first, last):
-            t = int(self.scenario.frame_times_us[i])
-            self.advance(t + 1_000)
-            n = len(self.results)
-            self.companion.on_frame(0, self.frames[i], t, t + 1_000)
-            # Until it is processed (at once, or after its bounded wait for the attitude).
-            self.advance(t + 1_000 + self.companion.config.attitude_wait_max_us)
-            assert len(self.results) == n + 1
-        self.keep = lambda s: True
-        self.nan_attitude = False
-
-    def run_frames(self, indices: list[int]) -> None:
-        """Like :meth:`run`, for any subset of the frames (a slower or jittering camera)."""
-        for i in indices:
-            t = int(self.scenario.frame_times_us[i])
-            self.advance(t + 1_000)
-            self.companion.on_frame(0, self.frames[i], t, t + 1_000)
-            self.advance(t + 1_000 + self.companion.config.attitude_wait_max_us)
-
-    def statuses(self) -> list[Any]:
-        return [m for m in self.sent if m.get_type() == "TCM_OBJECT_STATUS"]
-
-    def texts(self) -> list[str]:
-        return [m.text for m in self.sent if m.get_type() == "STATUSTEXT"]
-
-    def health_checks(self) -> list[HealthChecked]:
-        return [o for o in self.outputs if isinstance(o, HealthChecked)]
-
-
+@pytest.mark.slow  # over a second of CPU
 def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 100)
@@ -170,7 +68,7 @@ def test_a_normal_flight_sends_decided_statuses(flight: Any) -> None:
 def test_every_latency_figure_is_one_percentile(flight: Any) -> None:
     """The status line, TCM_PIPELINE_HEALTH and a run's summary read the latencies the
     same way (latency_percentile_ms: NumPy's linear interpolation)."""
-    from tcm_companion.service.plumbing import DaemonSummary
+    from tcm_companion.service.host import DaemonSummary
 
     lat = [5.0, 6.0, 7.0, 30.0]
     assert latency_percentile_ms(lat, 50) == pytest.approx(6.5)
@@ -454,6 +352,7 @@ def test_the_flight_log_falling_behind_is_reported_at_the_health_check(flight: A
     assert drv.health_checks()[-1].report.health_flags & d.TCM_HEALTH_LOG_FAULT
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_replay_frame_forces_the_clock_offset_and_the_override(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 30)
@@ -466,9 +365,9 @@ def test_replay_frame_forces_the_clock_offset_and_the_override(flight: Any) -> N
     assert result is not None and result.objects
     assert all(o.state == "unknown" and o.reason == "attitude stale" for o in result.objects)
     assert comp.clock_offset_us() == offset  # forced only for that frame
-    assert comp.data_to_send() == b"" or not [
-        m for m in decode(comp.data_to_send()) if m.get_type() == "TCM_OBJECT_STATUS"
-    ]
+    # Nothing is sent: no status among what replay_frame queued (run() drained the rest).
+    sent = decode(comp.data_to_send())
+    assert not [m for m in sent if m.get_type() == "TCM_OBJECT_STATUS"]
 
 
 def test_attitude_time_mapping_uses_timesync_and_removes_the_link_latency() -> None:

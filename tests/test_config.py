@@ -154,6 +154,7 @@ def test_camera_table_holds_the_model_and_the_source() -> None:
     assert cfg.camera.source.device == "/dev/video2" and cfg.camera.source.fourcc == "MJPG"
 
 
+@pytest.mark.slow  # a subprocess
 def test_config_check_prints_an_effective_config_that_loads_back(tmp_path: Path) -> None:
     import subprocess
     import sys

@@ -77,6 +77,7 @@ def _writable_cgroup() -> bool:
         return False
 
 
+@pytest.mark.slow  # a subprocess
 @pytest.mark.skipif(not _writable_cgroup(), reason="no writable cgroup cpu controller here")
 def test_a_process_in_the_quota_gets_a_quarter_of_a_core() -> None:
     """The real kernel limit: a busy loop for 1.5 s of wall time inside a 25 % quota

@@ -43,6 +43,7 @@ def replay(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, st
 # Flight logs
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("fraction", [0.1, 0.5, 0.97])
 def test_a_truncated_log_says_so_and_fails_the_check(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], fraction: float
@@ -83,6 +84,7 @@ def test_without_check_a_truncated_log_replays_what_is_readable_with_exit_0(
         assert len({row["frame"] for row in csv.DictReader(fh)}) == frames
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_exporting_a_truncated_log_says_the_scenario_is_partial(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -115,6 +117,7 @@ def test_a_log_cut_before_its_metadata_is_an_error_that_says_truncated(
     assert not (tmp_path / "r.csv").exists()
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_a_whole_log_passes_the_check_without_warnings(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -128,6 +131,7 @@ def test_a_whole_log_passes_the_check_without_warnings(
     assert "warning" not in err and "INCOMPLETE" not in out
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_check_with_a_tolerance_accepts_rounding_and_nothing_more(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -218,6 +222,7 @@ def split_log(
     return paths
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_a_log_of_several_parts_names_the_damaged_part(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -237,6 +242,7 @@ def test_a_log_of_several_parts_names_the_damaged_part(
     assert 0 < frames < 70
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_log_whose_writer_dropped_frames_replays_and_checks_what_it_can(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -286,6 +292,7 @@ def test_a_log_whose_writer_dropped_frames_replays_and_checks_what_it_can(
     assert "1 whose result is not (dropped by the writer), not replayed" in out
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_messages_the_writer_dropped_make_a_hole_too(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -359,6 +366,7 @@ def scenario(tmp_path: Path) -> Path:
     return sc
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_frames_the_telemetry_does_not_cover_are_named_in_the_summary(
     scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -389,6 +397,7 @@ def test_frames_the_telemetry_does_not_cover_are_named_in_the_summary(
     assert "truncated last record" in err  # and the .tlog's own warning
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_whole_scenario_has_no_attitude_warning(
     scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -396,6 +405,7 @@ def test_a_whole_scenario_has_no_attitude_warning(
     assert rc == 0 and err == "" and "without attitude" not in out
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("damage", ["junk", "middle"])
 def test_a_tlog_with_junk_or_a_corrupt_middle_replays_and_says_what_was_skipped(
     scenario: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str

@@ -29,7 +29,7 @@ from tcm_companion.core.frames import angle_between, bearing_from_azel, normaliz
 from tcm_companion.core.telemetry import TelemetryBuffer
 from tcm_companion.io.scenario import load_scenario
 
-from .conftest import example_path
+from .helpers import example_path
 
 CAMERAS: dict[str, CameraModel] = {
     "equirectangular": Equirectangular(360, 220),
@@ -204,6 +204,7 @@ DISC_CASES = [
 ]
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize(("cam_name", "az", "el", "alpha"), DISC_CASES)
 def test_shaded_disc_radius_within_2pct_and_bearing_within_0p1_px(
     cam_name: str, az: float, el: float, alpha: float
@@ -578,6 +579,7 @@ def test_bad_inputs_raise() -> None:
 # -- the independent examples ------------------------------------------------------
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("name", ["EX-T90", "EX-PINHOLE", "EX-FISHEYE"])
 def test_examples_bearing_and_radius_match_truth(name: str) -> None:
     scenario = load_scenario(example_path(name))

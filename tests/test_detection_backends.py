@@ -197,6 +197,7 @@ def test_contract_max_detections_and_min_radius(backend: str, tmp_path: Path) ->
     assert only.angular_radius_rad > 0.8 * big
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("backend", BACKEND_NAMES)
 def test_tracking_is_the_same_whichever_backend(backend: str, tmp_path: Path) -> None:
     """The simulated TS flight (the static red ball): one stable track, labelled, whose
@@ -413,6 +414,7 @@ def test_box_at_the_edge_or_outside_the_lens() -> None:
     assert rim.touches_border  # its right edge is beyond the lens
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_boxes_from_a_simulated_detections_csv(tmp_path: Path) -> None:
     """``sim export TS-BOX DIR --detections``, replayed with the boxes backend: the parked
     car is one labelled track, and the label goes out on MAVLink."""

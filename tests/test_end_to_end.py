@@ -17,7 +17,9 @@ from tcm_companion.io.scenario import load_scenario
 from tcm_companion.io.scoring import after_warmup
 from tcm_companion.sim import make_scenario
 
-from .conftest import example_path
+from .helpers import example_path
+
+pytestmark = pytest.mark.slow  # simulated flights rendered and replayed, seconds of CPU each
 
 CLS = AppConfig().pipeline.classifier
 

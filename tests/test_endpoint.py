@@ -384,6 +384,7 @@ def _hb():  # type: ignore[no-untyped-def]
 
 
 # A longer run is one command: TCM_FUZZ_EXAMPLES=100000 pytest tests/test_endpoint.py -k fuzz
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=int(os.environ.get("TCM_FUZZ_EXAMPLES", "200")), deadline=None)
 @given(junk=st.lists(st.binary(max_size=300), max_size=20), seed=st.integers(0, 1000))
 def test_fuzz_receive_path_never_raises_and_keeps_working(junk: list[bytes], seed: int) -> None:

@@ -38,6 +38,7 @@ def _with_closed_stdout(*args: str) -> subprocess.CompletedProcess[bytes]:
         os.close(write_end)
 
 
+@pytest.mark.slow  # a subprocess
 @pytest.mark.parametrize(
     "argv", [["sim", "list"], ["config", "check", "config.toml"]], ids=["sim-list", "config-check"]
 )
@@ -206,6 +207,7 @@ def test_sim_export_of_a_flight_longer_than_its_contact_is_a_usage_error(
 
 
 # -- set-up ----------------------------------------------------------------------------------
+@pytest.mark.slow  # a subprocess
 def test_pyproject_gives_setuptools_no_deprecation_warning() -> None:
     """The ``license = { text = ... }`` table made every install print setuptools'
     deprecation warnings; the SPDX string (PEP 639) does not (nor may a License classifier

@@ -241,6 +241,7 @@ def write_everything(directory: Path, fmt: str, frames: list[np.ndarray]) -> lis
     return calls
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_round_trip_png_is_bit_exact(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
     frames = sim_frames[:6]
     calls = write_everything(tmp_path, "png", frames)
@@ -307,6 +308,7 @@ def test_jpeg_round_trip_is_close(tmp_path: Path, sim_frames: list[np.ndarray]) 
     assert read_metadata(tmp_path)["jpeg_quality"] == str(LoggingConfig().jpeg_quality)
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_file_is_foxglove_readable_with_a_summary(
     tmp_path: Path, sim_frames: list[np.ndarray]
 ) -> None:
@@ -532,6 +534,7 @@ CRASH_WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # a subprocess
 def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path) -> None:
     script = tmp_path / "crash_writer.py"
     script.write_text(CRASH_WRITER)
@@ -595,6 +598,7 @@ DEFAULT_MCAP_WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # a subprocess
 def test_mcap_defaults_lose_everything_on_sigkill(tmp_path: Path) -> None:
     """Why the writer flushes: with mcap's defaults a killed process leaves nothing for the
     seeking reader and, below one chunk (1 MiB, ~50 s of telemetry), nothing at all."""

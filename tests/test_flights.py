@@ -91,6 +91,7 @@ def copy_flight(run: Run, dst: Path) -> list[Path]:
 # Two flights in one directory
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_two_runs_into_one_directory_are_two_flights(runs: tuple[Path, list[Run]]) -> None:
     shared, (a, b) = runs
     assert a.flight_id != b.flight_id  # the same simulation, but another flight
@@ -108,6 +109,7 @@ def test_two_runs_into_one_directory_are_two_flights(runs: tuple[Path, list[Run]
     assert all(f.problems == [] and not f.legacy for f in flights)
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_a_directory_of_two_flights_is_never_replayed_as_one(
     runs: tuple[Path, list[Run]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -180,6 +182,7 @@ def test_parts_are_joined_in_their_order_not_their_names(
     assert replayed(out) == a.processed and err == ""
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_a_missing_part_is_named_and_fails_the_check(
     runs: tuple[Path, list[Run]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -214,6 +217,7 @@ def test_another_flights_part_dropped_in_is_not_joined(
     assert replayed(out) == a.processed
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_a_copy_of_a_part_is_read_once_and_another_part_with_its_number_fails(
     runs: tuple[Path, list[Run]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -233,6 +237,7 @@ def test_a_copy_of_a_part_is_read_once_and_another_part_with_its_number_fails(
     assert f"warning: {copy}: another part 1 of flight {a.flight_id}" in err
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_an_empty_part_of_the_flight_is_reported_and_other_files_are_skipped(
     runs: tuple[Path, list[Run]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -262,6 +267,7 @@ def test_an_empty_part_of_the_flight_is_reported_and_other_files_are_skipped(
 # Logs written before flights had ids
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_logs_without_flight_ids_are_grouped_by_name_metadata_and_time(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -196,6 +196,7 @@ def test_fast_yaw_is_followed_through_the_attitude(predict: bool) -> None:
         assert len(b0) < 150  # most are lost without the prediction
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_pinhole_edges_drop_tracks_and_history_is_bounded() -> None:
     cam = Pinhole(320, 240, fx=250, fy=250, cx=160, cy=120)
     cfg = FlowConfig(sky_elevation_rad=NO_SKY, max_history=10, n_points=200)
@@ -294,7 +295,7 @@ def test_example_scenario_gives_the_true_translation_direction() -> None:
     from tcm_companion.core.telemetry import TelemetryBuffer
     from tcm_companion.io.scenario import load_scenario
 
-    from .conftest import example_path
+    from .helpers import example_path
 
     s = load_scenario(example_path("EX-T90"))
     assert s.truth is not None

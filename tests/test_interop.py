@@ -332,6 +332,7 @@ class _MavproxyRun:
     mock_param_changes: list[MockParamChanged]
 
 
+@pytest.mark.slow  # a subprocess (MAVProxy)
 @pytest.mark.parametrize("vehicle", [False, True], ids=["companion-only", "with-vehicle"])
 def test_mavproxy_records_our_messages_and_sets_our_parameter(
     interop_env: Any, tmp_path: Path, vehicle: bool
@@ -589,6 +590,7 @@ def _import_mavsdk() -> tuple[Any, Any]:
     return mavsdk_asyncio, MavlinkDirectAsync
 
 
+@pytest.mark.slow  # real transports, socat's pty pair
 @pytest.mark.parametrize("link_kind", ["udp", "serial"])
 def test_mavsdk_sees_our_component_and_decodes_our_status(link_kind: str) -> None:
     mavsdk_asyncio, direct_cls = _import_mavsdk()

@@ -2,7 +2,7 @@
 pyproject.toml's ``[tool.importlinter]``, and a deliberate upward import breaks it.
 
 The layers, bottom to top: core, mavlink, io | flightlog, sim, service, then the
-application (config, logsetup, replay | sitl, bench | eval | logtools, cli). The linter
+application (config, flight_log_setup, replay | sitl, bench | eval | logtools, cli). The linter
 reads the source (nothing is imported), lazy imports inside functions and imports under
 ``TYPE_CHECKING`` included.
 """
@@ -16,6 +16,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+pytestmark = pytest.mark.slow  # lint-imports in a subprocess
 
 ROOT = Path(__file__).resolve().parents[1]
 

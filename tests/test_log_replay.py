@@ -61,6 +61,7 @@ def lossless(config: AppConfig) -> AppConfig:
     return replace(config, logging=replace(config.logging, image_format="png"))
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_sitl_log_replays_to_exactly_the_logged_results(tmp_path: Path) -> None:
     report = asyncio.run(
         run_sitl(
@@ -180,6 +181,7 @@ def test_reference_logs_replay_bit_exactly_in_their_environment(log: Path) -> No
     assert _replayed_csv(frames) == want
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_logged_results_carry_what_replay_and_plots_need(tmp_path: Path) -> None:
     asyncio.run(
         run_sitl(
@@ -294,6 +296,7 @@ def test_logs_written_in_frame_counts_replay_in_seconds() -> None:
     assert new == doc and same == {"TCM_HOLD_S": 0.2}  # today's keys pass through
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_jpeg_log_fails_the_check_and_says_why(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

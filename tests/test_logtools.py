@@ -133,6 +133,7 @@ def exported(flight: Flight) -> Path:
 # --------------------------------------------------------------------------------------
 # log -> scenario
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow  # over a second of CPU
 def test_log_to_scenario_keeps_frames_times_and_telemetry(flight: Flight, exported: Path) -> None:
     sc = load_scenario(exported)
     sim = flight.sim
@@ -161,6 +162,7 @@ def test_log_to_scenario_keeps_frames_times_and_telemetry(flight: Flight, export
     assert lines[0] == "frame,t_us" and lines[1] == f"0,{sim.frame_times_us[0] + shift}"
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_exported_scenario_replays_like_the_flight(flight: Flight, exported: Path) -> None:
     sc = load_scenario(exported)
     frames = flight.frames[:40]
@@ -260,6 +262,7 @@ def test_log_to_scenario_errors_name_the_log(flight: Flight, tmp_path: Path) -> 
 # --------------------------------------------------------------------------------------
 # scenario -> log
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow  # over half a second of CPU
 def test_scenario_to_log_and_back(flight: Flight, exported: Path, tmp_path: Path) -> None:
     log_path = tmp_path / "sub" / "imported.mcap"
     summary = scenario_to_log(exported, log_path, results=True)
@@ -294,6 +297,7 @@ def test_scenario_to_log_and_back(flight: Flight, exported: Path, tmp_path: Path
     np.testing.assert_array_equal(sc.read_frame(5), flight.frames[5][2])
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_log_imported_with_results_replays_to_its_results(exported: Path, tmp_path: Path) -> None:
     """Issue 24 §4: a log written by ``import --results`` failed ``replay --check`` (150
     frames differ, 2.3e-04). Its results were computed with the telemetry received up to
@@ -349,6 +353,7 @@ def _check_pngs(paths: list[Path], names: set[str]) -> None:
         assert data.startswith(PNG_MAGIC) and len(data) > 10_000, p
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_plot_log_draws_every_plot(flight: Flight, tmp_path: Path) -> None:
     from tcm_companion.logtools.plot import build_figures, load_log_data
 
@@ -389,6 +394,7 @@ def test_plot_log_health_latency_blank_before_the_first_result(
     np.testing.assert_array_equal(latency[2:], 6.5)
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_plot_scenario_with_truth(flight: Flight, tmp_path: Path) -> None:
     from tcm_companion.logtools.plot import load_scenario_data
 

@@ -45,9 +45,13 @@ LUA32 = next(
 )
 LUAS = [p for p in (LUA32, LUA) if p is not None]
 
-pytestmark = pytest.mark.skipif(
-    not LUAS, reason="no Lua: apt-get install -y lua5.4, and make lua32 (ArduPilot's 32-bit Lua)"
-)
+pytestmark = [
+    pytest.mark.skipif(
+        not LUAS,
+        reason="no Lua: apt-get install -y lua5.4, and make lua32 (ArduPilot's 32-bit Lua)",
+    ),
+    pytest.mark.slow,  # the applet runs in a Lua interpreter, a subprocess per test
+]
 
 
 def need_lua32() -> str:

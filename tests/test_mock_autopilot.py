@@ -185,6 +185,7 @@ def test_heartbeat_rate_and_content_and_nothing_else_unrequested() -> None:
         assert m.tc1 == 0 and m.ts1 == ap.boot_us(t) * 1000 + 1
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_set_message_interval_acked_and_rates_measured() -> None:
     ap, c = make(ekf_origin_delay_us=2 * S)
     rates_hz = {

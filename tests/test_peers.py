@@ -34,14 +34,10 @@ from tcm_companion.mavlink.endpoint import (
 from tcm_companion.mavlink.peers import SenderGuard, TokenBucket
 from tcm_companion.sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 
+from .helpers import decode
+
 START = 5_000_000_000  # µs on the simulated clock
 S = 1_000_000
-
-
-def decode(data: bytes) -> list[Any]:
-    mav = d.MAVLink(None)
-    mav.robust_parsing = True
-    return [m for m in (mav.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
 
 
 class Link:
@@ -131,6 +127,7 @@ class Spoofer:
         return out + self.codec.encode(att)
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_a_spoofer_as_the_autopilot_is_one_conflict_not_a_reboot_storm() -> None:
     """Issue 24 §3: a second sender as 1/1 with its own clock (going back) and NaN
     attitude was taken as an autopilot reboot 504 times and drew 60-93 COMMAND_LONG a

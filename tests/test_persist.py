@@ -68,12 +68,12 @@ def test_timestamp_store(tmp_path: Path) -> None:
 
 
 def test_make_endpoint_signing_and_params(tmp_path: Path) -> None:
-    from tcm_companion.service.endpoint_setup import MavlinkSettings, make_endpoint, persist
+    from tcm_companion.service.endpoint_setup import MavlinkConfig, make_endpoint, persist
 
     key = tmp_path / "key"
     key.write_text("ab" * 32)
     key.chmod(0o644)
-    settings = MavlinkSettings(
+    settings = MavlinkConfig(
         signing_key_file=str(key),
         signing_timestamp_file=str(tmp_path / "ts"),
         params_file=str(tmp_path / "params.json"),
@@ -113,10 +113,10 @@ def test_a_configured_value_the_old_parameter_range_refused_is_used(tmp_path: Pa
     from tcm_companion.core.classify import ClassifierConfig
     from tcm_companion.core.pipeline import PipelineConfig
     from tcm_companion.mavlink.params import config_with_params
-    from tcm_companion.service.endpoint_setup import MavlinkSettings, make_endpoint
+    from tcm_companion.service.endpoint_setup import MavlinkConfig, make_endpoint
 
     pipeline = PipelineConfig(classifier=ClassifierConfig(interval_s=3.0, hold_s=2.5))
-    settings = MavlinkSettings(params_file=str(tmp_path / "params.json"))
+    settings = MavlinkConfig(params_file=str(tmp_path / "params.json"))
     ep, warnings = make_endpoint(settings, 0, pipeline)
     assert warnings == []
     used = config_with_params(pipeline, ep.params.values)

@@ -13,7 +13,7 @@ from tcm_companion.core.telemetry import AttitudeSample
 from tcm_companion.io.scenario import load_scenario
 from tcm_companion.replay.scenario import run_replay
 
-from .conftest import example_path
+from .helpers import example_path
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +36,7 @@ def feed(pipe: Pipeline, frames, telemetry, wait_us: int = 40_000, mutate=None):
     return out
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_replay_matches_manual_feeding(pinhole) -> None:  # type: ignore[no-untyped-def]
     s, frames, tel = pinhole
     a = feed(Pipeline(s.camera), frames, tel)
@@ -153,6 +154,7 @@ def score_flight(scenario, frames, keep):  # type: ignore[no-untyped-def]
     return acc, len(decided) / len(after), majority
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("name", ["T90", "TWO"])
 def test_same_decisions_at_25_and_at_10_fps(name: str) -> None:
     """The issue: frame-count intervals gave T90 42% at 8 fps. In seconds, a companion

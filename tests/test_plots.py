@@ -161,6 +161,7 @@ def _log_like(data: PlotData, health_before_first_frame: int = 2) -> PlotData:
 # --------------------------------------------------------------------------------------
 # Legends
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow  # over a second of CPU
 def test_scenario_plot_legends_do_not_hide_data(scenario_data: PlotData) -> None:
     figures, skipped = build_figures(scenario_data)
     assert set(figures) == set(PLOT_NAMES) - {"health"} and set(skipped) == {"health"}
@@ -169,6 +170,7 @@ def test_scenario_plot_legends_do_not_hide_data(scenario_data: PlotData) -> None
         assert n == (1 if name in WITH_LEGEND else 0), name
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_log_plot_legends_do_not_hide_data(scenario_data: PlotData) -> None:
     figures, skipped = build_figures(_log_like(scenario_data))
     assert set(figures) == set(PLOT_NAMES) and not skipped
@@ -186,6 +188,7 @@ def test_legend_check_fails_on_a_legend_over_the_data() -> None:
         assert_legends_clear(fig)
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_eval_plot_legends_do_not_hide_data() -> None:
     cls = ClassifierConfig()
     evals = [_eval("static", moving=False, level=0.02), _eval("moving", moving=True, level=0.7)]
@@ -251,6 +254,7 @@ def _method_lines(fig: Figure) -> dict[str, Any]:
     }
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_roc_curves_that_coincide_all_stay_visible() -> None:
     cls = ClassifierConfig()
     records = _roc_records()
@@ -319,6 +323,7 @@ def test_same_curve() -> None:
 # --------------------------------------------------------------------------------------
 # Health, latency histogram
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow  # over half a second of CPU
 def test_health_latency_blank_until_the_first_frame(scenario_data: PlotData) -> None:
     data = _log_like(scenario_data, health_before_first_frame=2)
     fig = build_figures(data)[0]["health"]
@@ -341,6 +346,7 @@ def test_health_latency_blank_until_the_first_frame(scenario_data: PlotData) -> 
     assert np.isnan(latency).all()
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_frame_counts_have_integer_ticks(scenario_data: PlotData) -> None:
     few = PlotData(source="few", results=scenario_data.results[:12])  # counts of 1..3
     for data in (scenario_data, few, _log_like(scenario_data)):

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tcm_companion.service.host import CompanionHost, SampleRing
 from tcm_companion.service.outputs import FrameProcessed
-from tcm_companion.service.plumbing import Plumbing, SampleRing
 
 
 def test_a_ring_keeps_the_newest_samples_oldest_first() -> None:
@@ -39,7 +39,7 @@ def test_a_ring_keeps_the_newest_samples_oldest_first() -> None:
 
 @dataclass
 class _Companion:
-    """What :meth:`Plumbing.sent` asks of the Companion: the frame's latency."""
+    """What :meth:`CompanionHost.sent` asks of the Companion: the frame's latency."""
 
     def frame_sent(self, out: FrameProcessed, sent_mono_us: int) -> float:
         return (sent_mono_us - out.capture_mono_us) / 1000.0
@@ -62,13 +62,13 @@ def _frame(k: int) -> FrameProcessed:
 
 
 def test_the_run_statistics_take_no_memory_per_frame() -> None:
-    plumbing = Plumbing(_Companion(), [])  # type: ignore[arg-type]
+    host = CompanionHost(_Companion(), [])  # type: ignore[arg-type]
     frames: list[Any] = [_frame(k) for k in range(20_000)]
 
     def send(batch: list[Any]) -> None:
         for k, out in enumerate(batch):
             done = out.process_mono_us + 3_000 + k % 7
-            plumbing.sent([out], done, done + 80)
+            host.sent([out], done, done + 80)
 
     send(frames[:100])
     tracemalloc.start()
@@ -80,9 +80,9 @@ def test_the_run_statistics_take_no_memory_per_frame() -> None:
         tracemalloc.stop()
     # Five Python floats a frame would be ~3 MB; a fixed ring, nothing.
     assert grown < 64 * 1024, f"the statistics grew by {grown} bytes over 19,900 frames"
-    summary_latency = plumbing.latencies_ms.values()
+    summary_latency = host.latencies_ms.values()
     assert summary_latency.size == 20_000
     assert summary_latency[-1] == pytest.approx(
         (frames[-1].process_mono_us + 3_000 + 19_899 % 7 + 80 - frames[-1].capture_mono_us) / 1000.0
     )
-    assert np.allclose(plumbing.stage_ms["handoff"].values(), 1.5)
+    assert np.allclose(host.stage_ms["handoff"].values(), 1.5)

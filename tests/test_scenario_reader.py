@@ -10,7 +10,7 @@ import pytest
 
 from tcm_companion.io.scenario import ScenarioError, load_scenario
 
-from .conftest import EXAMPLE_NAMES, example_path
+from .helpers import EXAMPLE_NAMES, example_path
 
 
 @pytest.mark.parametrize("name", EXAMPLE_NAMES)

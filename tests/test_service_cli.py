@@ -25,7 +25,7 @@ from tcm_companion import cli
 from tcm_companion.cli import sitl as sitl_cli
 from tcm_companion.cli import status_line
 from tcm_companion.cli.interrupts import RunSignals
-from tcm_companion.service.plumbing import run_length_text
+from tcm_companion.service.host import run_length_text
 
 
 @pytest.fixture(autouse=True)
@@ -134,6 +134,7 @@ def test_the_live_line_fits_one_row_and_plain_output_gets_every_nth(
     assert pipe.getvalue() == "line 0\nline 2\nline 4\n"
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_status_every_0_means_no_status_line(capsys: pytest.CaptureFixture[str]) -> None:
     """It divided by zero; now there is no status line (and negative is refused)."""
     code = command("sitl", "--clock", "virtual", "--duration", "1.5", "--status-every", "0",
@@ -194,6 +195,7 @@ def test_how_a_run_ended_reads() -> None:
     assert status(True, "SIGINT", service=True) == 130
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_sitl_in_virtual_time_cut_short_by_a_signal_says_so(
     sig: signal.Signals,

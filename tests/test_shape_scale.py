@@ -208,6 +208,7 @@ def _static_flight(fit_window_s: float | None) -> dict[str, float]:
     }
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_boxes_backend_decides_a_static_flight_static() -> None:
     """The detector simulator's jitter (1 px, 4 % per side) no longer reads as motion:
     with the default fit window the static car is called stationary, with single

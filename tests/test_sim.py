@@ -314,6 +314,7 @@ PAPER_FRAME_SHA256 = {
 }
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_paper_scenarios_render_byte_identical():
     kernel = numeric_kind()
     if kernel not in PAPER_FRAME_SHA256:
@@ -333,6 +334,7 @@ def test_paper_scenarios_render_byte_identical():
         assert tuple(got) == expected, f"{name} ({kernel})"
 
 
+@pytest.mark.slow  # a subprocess
 def test_the_rendered_frames_differ_between_blas_kernels_only_in_rounding() -> None:
     """What the per-kernel hashes above stand for: the same scene, a few pixels one code
     value apart (the image rendered again under the other kernel, in a subprocess)."""

@@ -97,6 +97,7 @@ def pose(t: float = 0.0):
 # --------------------------------------------------------------------------------------
 # Rendering geometry
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize("shape", list(SHAPES))
 @pytest.mark.parametrize("cam_name", list(CAMERAS))
 def test_shape_renders_where_it_projects(cam_name, shape):
@@ -253,6 +254,7 @@ def test_box_yaw_follows_its_path():
 # --------------------------------------------------------------------------------------
 # The new scenarios
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow  # over a second of CPU
 def test_object_scenarios_catalogue():
     small = Equirectangular(120, 74)
     for name in OBJECT_SCENARIO_NAMES:
@@ -310,6 +312,7 @@ def _behind_and_around(sim, frame):
     return out
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_hard_backgrounds():
     dark = make_scenario("DARKBG", duration_s=30.0, noise=0.0)
     for frame in (0, 260, 530):
@@ -413,6 +416,7 @@ def test_target_tables_in_object_id_order(tmp_path):
         read_targets(tmp_path)
 
 
+@pytest.mark.slow  # over a second of CPU
 def test_detections_csv_export_and_read(tmp_path):
     sim = make_scenario("MIXED", camera=Equirectangular(180, 110), duration_s=0.6)
     cfg = DetectorSimConfig(latency_frames=2, false_per_frame=0.5, seed=3)
@@ -488,6 +492,7 @@ def _moving_truth(n_frames: int) -> list[list[TrueBox]]:
     return out
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_detector_statistics_match_settings():
     cam = Equirectangular(360, 220)
     truth = _moving_truth(3000)

@@ -25,6 +25,8 @@ from tcm_companion.sitl.virtual import (
     VirtualTimeModel,
 )
 
+pytestmark = pytest.mark.slow  # whole SITL runs, seconds of CPU each, and the CLI in a subprocess
+
 
 def _stable(lines: list[str]) -> list[str]:
     """The summary without what may differ between identical runs: the wall-clock speed

@@ -255,6 +255,7 @@ def plan_and_world() -> tuple[FlightPlan, World]:
     return plan, field_world(plan.balls, plan.heading_rad)
 
 
+@pytest.mark.slow  # over a second of CPU
 @pytest.mark.parametrize(
     ("rig", "t_s", "lens_of_ball"),
     [("stitcher", 2.5, "back"), ("stitcher", 7.5, "front"), ("tilted", 7.5, "front")],

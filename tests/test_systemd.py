@@ -86,6 +86,7 @@ def _runnable_copy(tmp_path: Path) -> Path:
     return copy
 
 
+@pytest.mark.slow  # a subprocess
 @needs_analyze
 def test_unit_verifies_without_any_message(tmp_path: Path) -> None:
     copy = _runnable_copy(tmp_path)
@@ -100,6 +101,7 @@ def test_unit_verifies_without_any_message(tmp_path: Path) -> None:
     assert proc.returncode == 0 and output == "", output
 
 
+@pytest.mark.slow  # a subprocess
 @needs_analyze
 def test_verify_would_catch_a_bad_setting(tmp_path: Path) -> None:
     """The check above is meaningful: a misspelt key in the same unit is reported."""
@@ -111,6 +113,7 @@ def test_verify_would_catch_a_bad_setting(tmp_path: Path) -> None:
     assert "ProtectClok" in proc.stdout + proc.stderr
 
 
+@pytest.mark.slow  # a subprocess
 @needs_analyze
 def test_security_exposure_is_ok_or_better() -> None:
     proc = subprocess.run(
@@ -328,6 +331,7 @@ raise SystemExit(0 if all(ok) and n.errors == 0 else 1)
 """
 
 
+@pytest.mark.slow  # a subprocess
 @pytest.mark.parametrize("abstract", [False, True], ids=["path", "abstract"])
 def test_a_separate_process_notifies(sock_dir: Path, abstract: bool) -> None:
     address = f"@tcm-companion-test-{uuid.uuid4().hex}" if abstract else str(sock_dir / "nfy")

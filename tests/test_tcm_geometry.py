@@ -33,6 +33,7 @@ def distance_to_line(p: np.ndarray, q: np.ndarray, t_hat: np.ndarray) -> float:
     return float(np.linalg.norm(np.cross(p - q, t_hat)))
 
 
+@pytest.mark.slow  # about a second of CPU (a property test; its deadline trips on a busy machine)
 @settings(max_examples=300)
 @given(q0=vec3, t=vec3, p=vec3)
 def test_stationary_triangle_closes(q0: np.ndarray, t: np.ndarray, p: np.ndarray) -> None:
@@ -48,6 +49,7 @@ def test_stationary_triangle_closes(q0: np.ndarray, t: np.ndarray, p: np.ndarray
     assert float(ecm_omega_rad(t_hat, b0, b1)) < 1e-6
 
 
+@pytest.mark.slow  # over a second of CPU
 @settings(max_examples=300)
 @given(q0=vec3, t=vec3, p0=vec3, v=vec3)
 def test_motion_changing_distance_to_flight_line_gives_positive_disparity(

@@ -39,6 +39,7 @@ def test_scenario_file_not_utf8_names_file_and_line(tmp_path: Path, name: str) -
     assert str(err.value).startswith(f"{f}: line {line}: not UTF-8 text (byte 0xff")
 
 
+@pytest.mark.slow  # a subprocess
 def test_cli_says_one_line_not_a_traceback(tmp_path: Path) -> None:
     p = tmp_path / "c.toml"
     p.write_bytes(b"x = 1 # \xff\n")

@@ -21,6 +21,7 @@ def _fresh_textures(ground: world.Ground) -> world.GroundTextures:
     return world.ground_textures(ground)
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_ground_and_sky_textures_from_the_cache_are_the_built_ones(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

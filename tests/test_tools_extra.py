@@ -36,6 +36,7 @@ def test_progress_without_tqdm_prints_plain_lines(monkeypatch: pytest.MonkeyPatc
         bar.update(5)
 
 
+@pytest.mark.slow  # over half a second of CPU
 def test_replay_without_tqdm(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # every tool in a subprocess
+
 TOOLS = sorted((Path(__file__).resolve().parent.parent / "tools").glob("*.py"))
 
 

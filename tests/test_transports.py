@@ -262,7 +262,10 @@ class TcpLink(Link):
         await self.server.start()  # same port: asyncio sets SO_REUSEADDR
 
 
-@pytest.fixture(params=KINDS)
+@pytest.fixture(
+    # the pty pair is made by socat, a subprocess: slow (tests/conftest.py)
+    params=[pytest.param(k, marks=pytest.mark.slow) if k == "pty" else k for k in KINDS]
+)
 def link(request: pytest.FixtureRequest) -> Any:
     kind = request.param
     if kind == "memory":

@@ -17,7 +17,7 @@ import statistics
 import tempfile
 
 from tcm_companion.config import AppConfig
-from tcm_companion.sim.scene.autopilot_camera import SceneSettings
+from tcm_companion.sim.scene.autopilot_camera import SceneConfig
 from tcm_companion.sitl.ardupilot import APPLET, SITL_PARAMS, FlightPlanAP, fly_scene
 from tcm_companion.sitl.ardupilot_process import skip_reason
 from tcm_companion.sitl.ardupilot_vehicle import ArduPilotSitl
@@ -38,7 +38,7 @@ def main() -> int:
         k = 0
         for _ in range(args.n):
             for scene in args.scenes:
-                plan = FlightPlanAP(SceneSettings(scene), heading_deg=0.0 if k % 2 == 0 else 180.0)  # type: ignore[arg-type]
+                plan = FlightPlanAP(SceneConfig(scene), heading_deg=0.0 if k % 2 == 0 else 180.0)  # type: ignore[arg-type]
                 k += 1
                 with tempfile.TemporaryDirectory() as state:
                     r = asyncio.run(fly_scene(AppConfig(), sitl, plan, state_dir=state))

@@ -42,7 +42,7 @@ def _as_daemon(argv: list[str]) -> None:
     """The daemon process: ``tcm-companion run ARGV`` with ``Pipeline.step`` timed."""
     from tcm_companion.cli import main
     from tcm_companion.core import pipeline
-    from tcm_companion.service import plumbing
+    from tcm_companion.service import host
 
     acc = {"step_s": 0.0, "frames": 0}
     mark: dict[str, float] = {}
@@ -56,7 +56,7 @@ def _as_daemon(argv: list[str]) -> None:
             acc["step_s"] += time.thread_time() - t0
             acc["frames"] += 1
 
-    health = plumbing.Plumbing.health_checked
+    health = host.CompanionHost.health_checked
 
     def checked(self, hc):  # type: ignore[no-untyped-def]
         if self.health_checks == 9:  # the 10th second: start-up is over
@@ -76,7 +76,7 @@ def _as_daemon(argv: list[str]) -> None:
             )
 
     pipeline.Pipeline.step = timed_step  # type: ignore[method-assign]
-    plumbing.Plumbing.health_checked = checked  # type: ignore[method-assign]
+    host.CompanionHost.health_checked = checked  # type: ignore[method-assign]
     atexit.register(report)
     sys.argv = ["tcm-companion", *argv]
     main()

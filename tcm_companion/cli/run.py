@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
     from ..config import AppConfig
     from ..flightlog.handle import FlightLog
-    from ..service.plumbing import DaemonSummary
+    from ..service.host import DaemonSummary
     from ..service.runner import StartLog
 
 log = logging.getLogger("tcm_companion")
@@ -82,7 +82,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     inputs = run_inputs(args, config)
     run_log_dir = None
     if config.logging.enabled:
-        from ..logsetup import log_directory
+        from ..flight_log_setup import log_directory
 
         run_log_dir = log_directory(config, state)
     # found now, not after a flight of hours
@@ -99,7 +99,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if config.camera.source.source == "sim":
         log.info("camera source is the simulator: flying the mock autopilot (SITL)")
         warn_url_ignored(config, 'with [camera] source = "sim"')
-        from ..logsetup import log_directory
+        from ..flight_log_setup import log_directory
 
         log_dir = str(log_directory(config, state)) if config.logging.enabled else None
         # The service's exit status is about the service, not the simulation's accuracy.
@@ -156,7 +156,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         cameras = [CameraInput(cam.name, cam.model, source, fps=cam.source.fps)]
         start_log: StartLog | None = None
         if config.logging.enabled:
-            from ..logsetup import log_directory, start_flight_log
+            from ..flight_log_setup import log_directory, start_flight_log
 
             log_dir = log_directory(config, state)
 
@@ -191,7 +191,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return summary
     if args.summary_json:
         write_summary_json(args.summary_json, summary, inputs=inputs, others=[run_log_dir])
-    from ..service.plumbing import run_length_text
+    from ..service.host import run_length_text
 
     stopped_by = "" if ran_out else signals.stopped_by(True) or "stop"
     lat = summary.latency_percentile_ms(99)

@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     import asyncio
 
     from ..config import AppConfig
-    from ..service.plumbing import DaemonSummary
+    from ..service.host import DaemonSummary
     from ..sitl.mock_flight import SitlReport
 
 log = logging.getLogger("tcm_companion")
@@ -84,10 +84,10 @@ def cmd_sitl(args: argparse.Namespace) -> int:
 def warn_url_ignored(config: AppConfig, when: str) -> None:
     """Say that ``[mavlink] url`` is not used (``when``): the daemon then talks to the
     mock autopilot in the same process, over a loopback UDP pair of its own."""
-    from ..service.endpoint_setup import MavlinkSettings
+    from ..service.endpoint_setup import MavlinkConfig
 
     url = config.mavlink.url
-    if url != MavlinkSettings.url:
+    if url != MavlinkConfig.url:
         log.warning(
             "[mavlink] url = %r is ignored %s: the daemon talks to the mock autopilot in this"
             " process over loopback UDP; to fly the simulated camera against your own"

@@ -6,13 +6,13 @@
   :class:`~.stats.FlightLogStats`, and state), :mod:`.encoding` (items as MCAP messages),
   :mod:`.part` (one MCAP file of the log) and :mod:`.disk` (free space, flushing a part
   to the OS).
-- :mod:`.handle` — :class:`~.handle.FlightLog`, what the daemon's plumbing writes through
+- :mod:`.handle` — :class:`~.handle.FlightLog`, what the companion host writes through
   (live or deterministic).
 - :mod:`.reader` — reading logs back (also after a crash).
 - :mod:`.topics` — the table of topics every writer and reader names.
 - :mod:`.docs` — the per-frame result documents the daemon logs.
 
 Opening a run's log from the configuration is the application's
-(:mod:`tcm_companion.logsetup`). The submodules are imported on their own; this package
+(:mod:`tcm_companion.flight_log_setup`). The submodules are imported on their own; this package
 imports nothing, so that :mod:`.topics` does not pull in MCAP.
 """

@@ -1,7 +1,7 @@
-"""The flight log as the daemon's plumbing writes to it: :class:`FlightLog`, a handle on a
+"""The flight log as the companion host writes to it: :class:`FlightLog`, a handle on a
 running :class:`~.writer.FlightLogWriter`, live (a full queue drops, counted) or
 deterministic (a producer waits for room; the counters are read once the writer has
-caught up). :mod:`tcm_companion.logsetup` opens it from the configuration and describes
+caught up). :mod:`tcm_companion.flight_log_setup` opens it from the configuration and describes
 both modes.
 """
 
@@ -18,7 +18,7 @@ from .writer import FlightLogWriter
 
 
 class FlightLog:
-    """The flight log as the daemon's plumbing uses it (see the module docstring).
+    """The flight log as the companion host uses it (see the module docstring).
 
     Producers (``log_*``) are the writer's: non-blocking, False when the item was
     dropped — except in deterministic mode, where they wait for room. ``events`` holds

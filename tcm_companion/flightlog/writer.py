@@ -40,7 +40,7 @@ part starts with the ``"tcm-companion"`` metadata record (with ``flight_id`` and
 part's number ``log_part``), and a closed part has the full MCAP summary (index,
 statistics), so each part opens on its own in Foxglove or ``mcap info``. The flight id
 (12 hex digits) is random unless given (a deterministic run derives its own:
-:mod:`tcm_companion.logsetup`): a reader joins the parts of one flight, never two
+:mod:`tcm_companion.flight_log_setup`): a reader joins the parts of one flight, never two
 flights that share a directory (:func:`~.reader.select_flight`).
 
 *Disk.* Below ``min_free_mb`` of free space (checked at most once a second, in the writer

@@ -616,7 +616,7 @@ class Companion:
                 now_mono_us,
             )
             self._log_behind_reported = self._log_behind
-        changes = self.tick(now_mono_us)
+        changes = self.check_inputs(now_mono_us)
         st = self.inputs.status(now_mono_us)
         return HealthChecked(
             now_mono_us,
@@ -626,7 +626,7 @@ class Companion:
             {k: v.problem for k, v in st.items()},
         )
 
-    def tick(self, now_mono_us: int) -> list[tuple[str, str]]:
+    def check_inputs(self, now_mono_us: int) -> list[tuple[str, str]]:
         """The input part of the health check (run by :meth:`process_due` once a
         second); returns the input changes ``(input, problem)`` it reported, and
         ``("pipeline", problem)`` when the pipeline starts or stops being overloaded."""

@@ -2,7 +2,7 @@
 
 Everything here is plumbing; the decisions are in :mod:`.companion` (the frame slots,
 the attitude wait, input health, rebuilds, the order outputs go out in) and what is done
-with its outputs in :mod:`.plumbing` (shared with the virtual-time SITL).
+with its outputs in :mod:`.host` (shared with the virtual-time SITL).
 
 - One reader thread per camera (:class:`~tcm_companion.io.cameras.reader.CameraReader`)
   blocks in the camera's ``read()``, stamps the capture time on the companion monotonic
@@ -52,8 +52,8 @@ from ..mavlink.endpoint import CompanionEndpoint
 from .box_feed import open_box_feed
 from .companion import Companion
 from .daemon_config import DaemonConfig
-from .endpoint_setup import MavlinkSettings
-from .plumbing import CameraInput, DaemonSummary, NotifierLike, Plumbing
+from .endpoint_setup import MavlinkConfig
+from .host import CameraInput, CompanionHost, DaemonSummary, NotifierLike
 
 if TYPE_CHECKING:
     from ..flightlog.handle import FlightLog
@@ -76,7 +76,7 @@ class ServiceConfig(Protocol):
     def pipeline(self) -> PipelineConfig: ...
 
     @property
-    def mavlink(self) -> MavlinkSettings: ...
+    def mavlink(self) -> MavlinkConfig: ...
 
 
 def name_os_threads() -> None:
@@ -137,7 +137,7 @@ class Daemon:
             interval = min(interval, watchdog_interval_us)
         self.health_interval_us = interval
         self.companion: Companion | None = None
-        self.plumbing: Plumbing | None = None
+        self.host: CompanionHost | None = None
         self.readers: list[Any] = []
         self.send_errors = 0
         self._wake = asyncio.Event()
@@ -156,17 +156,17 @@ class Daemon:
         return on_frame
 
     def _on_frame(self, frame: Frame) -> None:
-        assert self.plumbing is not None
-        self.plumbing.frame_arrived(frame, self.clock.now_us())
+        assert self.host is not None
+        self.host.frame_arrived(frame, self.clock.now_us())
         self._wake.set()
 
     def _on_box_datagram(self, data: bytes) -> None:  # on the loop's thread
-        assert self.plumbing is not None
+        assert self.host is not None
         now = self.clock.now_us()
         try:
-            self.plumbing.box_datagram(data, now)
+            self.host.box_datagram(data, now)
         except Exception:  # a bug must not close the socket (uvloop would) or stop the loop
-            counts = self.plumbing.companion.stats.box_feed
+            counts = self.host.companion.stats.box_feed
             counts["handler error"] += 1
             # A bug's traceback once per 10 s, not once per (hostile) datagram.
             last = self._box_error_logged_us
@@ -177,15 +177,15 @@ class Daemon:
 
     # -- tasks -------------------------------------------------------------------------------
     async def _link_reader(self, transport: Transport) -> None:
-        plumbing = self.plumbing
-        assert plumbing is not None
+        host = self.host
+        assert host is not None
         while True:
             try:
                 data = await transport.recv()
             except TransportError:  # closed (a reconnecting transport comes back) or failing
                 await self.clock.wait_until(None, self.clock.now_us() + _LINK_RETRY_US)
                 continue
-            plumbing.bytes_received(data, self.clock.now_us())
+            host.bytes_received(data, self.clock.now_us())
             self._wake.set()
 
     async def _write(self, transport: Transport, data: bytes) -> None:
@@ -200,14 +200,14 @@ class Daemon:
 
     async def _turn(self, transport: Transport) -> None:
         """One turn: whatever is due, its outputs handled, its bytes written."""
-        plumbing, clock = self.plumbing, self.clock
-        assert plumbing is not None
+        host, clock = self.host, self.clock
+        assert host is not None
         now = clock.now_us()
-        outputs = plumbing.process_due(now)
+        outputs = host.process_due(now)
         done = clock.now_us()
-        data = plumbing.take_bytes()
+        data = host.take_bytes()
         await self._write(transport, data)
-        plumbing.written(outputs, data, done, clock.now_us())
+        host.written(outputs, data, done, clock.now_us())
 
     async def _main(self, transport: Transport) -> None:
         comp = self.companion
@@ -260,7 +260,7 @@ class Daemon:
                 camera_rates_hz=[c.fps for c in self.camera_inputs],
                 detector_model=read_detector_model(self.config.pipeline.detection),
             )
-            self.plumbing = Plumbing(
+            self.host = CompanionHost(
                 self.companion,
                 self.camera_inputs,
                 flight_log=self.flight_log,
@@ -270,7 +270,7 @@ class Daemon:
                 persist=self._persist,
                 loop_healthy=self._loop_healthy,
             )
-            notifier = self.plumbing.notifier
+            notifier = self.host.notifier
 
             # The live box feed: a UDP socket on the loop, closed on the way out.
             feed_url = self.config.daemon.box_feed
@@ -323,8 +323,8 @@ class Daemon:
                     await asyncio.sleep(0)
                 now = clock.now_us()
                 self.companion.discard_pending(now)
-                await self._write(transport, self.plumbing.bytes_to_send(now))
-        return self.plumbing.summary(
+                await self._write(transport, self.host.bytes_to_send(now))
+        return self.host.summary(
             (clock.now_us() - t0) / 1e6,
             {r.source.name: r.stats for r in self.readers},
             self._handoff_failures,

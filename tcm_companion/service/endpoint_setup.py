@@ -20,7 +20,7 @@ from ..mavlink.params import CONFIG_KEYS, params_from_config
 
 
 @dataclass(frozen=True)
-class MavlinkSettings:
+class MavlinkConfig:
     url: str = "udpout:127.0.0.1:14550"  # e.g. serial:/dev/ttyAMA0:921600
     endpoint: EndpointConfig = field(default_factory=EndpointConfig)
     signing_key_file: str = ""  # empty: no signing
@@ -31,7 +31,7 @@ class MavlinkSettings:
     params_file: str = "params.json"
 
 
-def resolve_state_paths(settings: MavlinkSettings, state_dir: str | Path) -> MavlinkSettings:
+def resolve_state_paths(settings: MavlinkConfig, state_dir: str | Path) -> MavlinkConfig:
     """``settings`` with relative state file paths made absolute under ``state_dir``."""
     base = Path(state_dir)
 
@@ -46,7 +46,7 @@ def resolve_state_paths(settings: MavlinkSettings, state_dir: str | Path) -> Mav
 
 
 def make_endpoint(
-    settings: MavlinkSettings,
+    settings: MavlinkConfig,
     now_us: int,
     pipeline: PipelineConfig | None = None,
 ) -> tuple[CompanionEndpoint, list[str]]:
@@ -97,7 +97,7 @@ def make_endpoint(
     return endpoint, warnings
 
 
-def persist(settings: MavlinkSettings, endpoint: CompanionEndpoint) -> None:
+def persist(settings: MavlinkConfig, endpoint: CompanionEndpoint) -> None:
     """Write the parameters set over MAVLink (those that differ from the configuration's)
     and the signing timestamp back."""
     ParamStore(settings.params_file).save(endpoint.params.overrides())

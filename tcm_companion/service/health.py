@@ -29,7 +29,7 @@ def latency_percentile_ms(latencies_ms: Iterable[float], q: float) -> float:
     linear interpolation between the closest ranks; NaN when there are none.
 
     The one definition of every latency figure: the status line and
-    ``TCM_PIPELINE_HEALTH`` (:class:`Companion`), a run's :class:`~.plumbing.DaemonSummary`
+    ``TCM_PIPELINE_HEALTH`` (:class:`Companion`), a run's :class:`~.host.DaemonSummary`
     (the SITL report, ``bench --daemon``) and the flight-log plots.
     """
     values = np.fromiter(latencies_ms, dtype=np.float64)

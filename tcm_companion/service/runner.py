@@ -10,7 +10,7 @@ and virtual time) and against ArduPilot's SITL — does the same steps around it
    logged (a :class:`~tcm_companion.io.persist.SigningKeyError` goes to the caller);
 3. the flight log started with the parameters in force at start (replay needs them), by
    the caller's ``start_log`` (the service does not know the application's
-   configuration: ``tcm_companion.logsetup.start_flight_log`` does);
+   configuration: ``tcm_companion.flight_log_setup.start_flight_log`` does);
 4. in real time, the transport (``[mavlink] url`` unless the caller brings its own) and
    the :class:`~.daemon.Daemon`.
 
@@ -40,8 +40,8 @@ from ..io.aio import monotonic_us
 from ..io.transports import Transport, open_transport
 from ..mavlink.endpoint import CompanionEndpoint
 from .daemon import Daemon, ServiceConfig
-from .endpoint_setup import MavlinkSettings, make_endpoint, persist, resolve_state_paths
-from .plumbing import CameraInput, DaemonSummary
+from .endpoint_setup import MavlinkConfig, make_endpoint, persist, resolve_state_paths
+from .host import CameraInput, DaemonSummary
 
 if TYPE_CHECKING:
     from ..flightlog.handle import FlightLog
@@ -61,7 +61,7 @@ class ServiceState:
     files resolved (absolute, under the state directory), the endpoint made from them,
     and the flight log (None: not logging)."""
 
-    settings: MavlinkSettings
+    settings: MavlinkConfig
     endpoint: CompanionEndpoint
     flight_log: FlightLog | None
 

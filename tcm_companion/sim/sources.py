@@ -18,14 +18,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ..io.cameras.base import CameraError, FrameSource
-from ..io.cameras.settings import CameraSettings, TruthFn, register_source
+from ..io.cameras.settings import CameraSourceConfig, TruthFn, register_source
 
 if TYPE_CHECKING:
     from ..core.camera import CameraModel
 
 
 def _sim(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
     if truth_us is None:
         raise CameraError(
@@ -41,15 +41,15 @@ def _sim(
 
 
 def _sim_autopilot(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
-    from .scene.autopilot_camera import AutopilotSimCamera, SceneSettings, check_url
+    from .scene.autopilot_camera import AutopilotSimCamera, SceneConfig, check_url
 
     try:
         check_url(s.sim_url)
     except CameraError as exc:
         raise CameraError(f"camera.sim_url: {exc}") from None
-    scene = SceneSettings(
+    scene = SceneConfig(
         kind=s.sim_scene,
         contact_s=s.sim_contact_s,
         ball_speed_mps=s.sim_ball_speed_mps,

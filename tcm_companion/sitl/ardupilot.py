@@ -50,7 +50,7 @@ from ..mavlink.copter_modes import mode_name, mode_number
 from ..mavlink.endpoint import CompanionEndpoint
 from ..service.daemon import CameraInput, DaemonSummary
 from ..service.runner import open_service
-from ..sim.scene.autopilot_camera import AutopilotSimCamera, Launch, SceneSettings
+from ..sim.scene.autopilot_camera import AutopilotSimCamera, Launch, SceneConfig
 from .ardupilot_vehicle import ArduPilotSitl
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,7 @@ class FlightPlanAP:
     when there was none) for the alarm to clear.
     """
 
-    scene: SceneSettings = field(default_factory=SceneSettings)
+    scene: SceneConfig = field(default_factory=SceneConfig)
     heading_deg: float = 0.0
     speed_mps: float = 2.0
     altitude_m: float = 5.0
@@ -610,7 +610,7 @@ async def run_ardupilot_sitl(
     sitl = ArduPilotSitl(params=SITL_PARAMS, scripts=[APPLET])
     await asyncio.to_thread(sitl.start)
     try:
-        plan = FlightPlanAP(scene=SceneSettings(kind=scene), pilot_mode=pilot_mode)  # type: ignore[arg-type]
+        plan = FlightPlanAP(scene=SceneConfig(kind=scene), pilot_mode=pilot_mode)  # type: ignore[arg-type]
         report = await fly_scene(config, sitl, plan, on_status=on_status)
         if not report.ok:
             log.warning("SITL console tail:\n%s", sitl.console_tail(20))

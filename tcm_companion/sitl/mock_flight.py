@@ -9,7 +9,7 @@ Two clocks:
   ephemeral port, ``udpin:127.0.0.1:0``), all in one process in real time, with a live
   status line.
 - **virtual** (``tcm-companion sitl --clock virtual``): the same
-  :class:`~tcm_companion.service.companion.Companion`, plumbing, mock and simulated camera on one simulated
+  :class:`~tcm_companion.service.companion.Companion`, host, mock and simulated camera on one simulated
   clock (:mod:`.virtual`), as fast as the CPU allows; the same seed and
   configuration give byte-identical results and flight logs, run after run.
 
@@ -50,12 +50,12 @@ from ..core.camera import CameraModel
 from ..core.classify import ClassifierConfig
 from ..core.frames import normalize
 from ..core.pipeline import FrameResult
+from ..flight_log_setup import start_flight_log
 from ..io.aio import monotonic_us
 from ..io.detector_model import read_detector_model
 from ..io.scoring import Score, match_truth, warmed_up
 from ..io.transports import Transport, open_transport
-from ..logsetup import start_flight_log
-from ..service.plumbing import CameraInput, DaemonSummary, NotifierLike, run_length_text
+from ..service.host import CameraInput, DaemonSummary, NotifierLike, run_length_text
 from ..service.runner import ServiceState, StartLog, open_service, open_service_state
 from ..sim.vehicle.mock_autopilot import MockAutopilot, MockAutopilotConfig
 from ..sim.vehicle.mock_autopilot_run import run_mock_autopilot
@@ -308,7 +308,7 @@ def _start_log(
     config: AppConfig, log_dir: str | None, cameras: list[CameraInput], **log_kwargs: Any
 ) -> StartLog | None:
     """The service's ``start_log`` for ``log_dir`` (None: no flight log), ``log_kwargs`` to
-    :func:`~tcm_companion.logsetup.start_flight_log`."""
+    :func:`~tcm_companion.flight_log_setup.start_flight_log`."""
     if log_dir is None or not config.logging.enabled:
         return None
     directory = Path(log_dir)
@@ -571,7 +571,7 @@ def run_sitl_virtual(
     import cv2
 
     from ..service.companion import Companion
-    from ..service.plumbing import Plumbing
+    from ..service.host import CompanionHost
     from ..sim.scene.truth_camera import no_sleep
     from .virtual import VirtualSitl
 
@@ -628,7 +628,7 @@ def run_sitl_virtual(
                 pipeline_timer=lambda: now_us() / 1e6,  # stages take no simulated time
                 detector_model=read_detector_model(config.pipeline.detection),
             )
-            plumbing = Plumbing(
+            host = CompanionHost(
                 companion,
                 cameras,
                 flight_log=state.flight_log,
@@ -640,7 +640,7 @@ def run_sitl_virtual(
             sim = VirtualSitl(
                 mock,
                 companion,
-                plumbing,
+                host,
                 cameras,
                 vm,
                 start_mono_us=start,

@@ -2,7 +2,7 @@
 simulated clock, as fast as the CPU allows, with the same results every run.
 
 A discrete-event simulation over the sans-IO pieces — no threads (but the flight log's
-writer, made deterministic by :mod:`tcm_companion.logsetup`), no sockets, no asyncio:
+writer, made deterministic by :mod:`tcm_companion.flight_log_setup`), no sockets, no asyncio:
 
 - the :class:`~tcm_companion.sim.vehicle.mock_autopilot.MockAutopilot` (``receive_data``,
   ``poll``, ``data_to_send``, ``next_deadline_us``) is polled at its deadlines and takes
@@ -15,7 +15,7 @@ writer, made deterministic by :mod:`tcm_companion.logsetup`), no sockets, no asy
 - the links are in memory, each way a constant latency (``link_latency_us``), in order,
   and can be cut (``link_up``);
 - the :class:`~tcm_companion.service.companion.Companion`, through the same
-  :class:`~tcm_companion.service.plumbing.Plumbing` as the asyncio daemon, is one
+  :class:`~tcm_companion.service.host.CompanionHost` as the asyncio daemon, is one
   single-threaded "loop": a frame's pipeline takes ``process_us`` of simulated time
   (not the machine's), during which frames and bytes queue up as they would behind a
   busy event loop, and the frame's bytes go out when it is done.
@@ -41,8 +41,8 @@ from typing import Any, Protocol
 from ..core.pipeline import FrameResult
 from ..io.cameras.reader import ReaderCore
 from ..service.companion import Companion
+from ..service.host import CameraInput, CompanionHost, DaemonSummary
 from ..service.outputs import FrameProcessed
-from ..service.plumbing import CameraInput, DaemonSummary, Plumbing
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,7 @@ class VirtualSitl:
         self,
         autopilot: AutopilotLike,
         companion: Companion,
-        plumbing: Plumbing,
+        host: CompanionHost,
         cameras: Sequence[CameraInput],
         model: VirtualTimeModel,
         *,
@@ -106,7 +106,7 @@ class VirtualSitl:
         ``link_up(run time s)``: False while the radio is out (bytes vanish)."""
         self.autopilot = autopilot
         self.companion = companion
-        self.plumbing = plumbing
+        self.host = host
         self.cameras = list(cameras)
         self.model = model
         self.start_mono_us = int(start_mono_us)
@@ -177,13 +177,13 @@ class VirtualSitl:
         self._push(at, _CAMERA, cid)
 
     def _companion_turn(self, now: int) -> None:
-        plumbing = self.plumbing
-        outputs = plumbing.process_due(now)
+        host = self.host
+        outputs = host.process_due(now)
         worked = any(isinstance(o, FrameProcessed) for o in outputs)
         done = now + (self.model.process_us if worked else 0)
-        data = plumbing.take_bytes()  # written, then logged and handled, as in the daemon
+        data = host.take_bytes()  # written, then logged and handled, as in the daemon
         self._carry(data, done, _TO_MOCK)
-        plumbing.written(outputs, data, done, done)
+        host.written(outputs, data, done, done)
         self._busy_until_mono_us = done
         nxt = self.companion.next_deadline_us()
         if nxt <= now and not worked:
@@ -208,7 +208,7 @@ class VirtualSitl:
         for cid in range(len(self.readers)):
             self._push(up, _CAMERA, cid)
         self._wake_companion(up)
-        self.plumbing.notifier.ready(f"running: {len(self.cameras)} camera(s), virtual time")
+        self.host.notifier.ready(f"running: {len(self.cameras)} camera(s), virtual time")
         ran_out = True  # of simulated time (not stopped)
         while self._heap:
             if should_stop():
@@ -235,9 +235,9 @@ class VirtualSitl:
                     self._push(self._busy_until_mono_us, kind, payload)
                     continue
                 if kind == _FRAME:
-                    self.plumbing.frame_arrived(payload, t)
+                    self.host.frame_arrived(payload, t)
                 else:
-                    self.plumbing.bytes_received(payload, t)
+                    self.host.bytes_received(payload, t)
                 self._wake_companion(t)
             elif kind == _COMPANION:
                 if payload != self._companion_wake_mono_us:
@@ -261,18 +261,18 @@ class VirtualSitl:
         pending = sorted(self._heap)
         for _, _, kind, payload in pending:
             if kind == _FRAME:
-                self.plumbing.frame_arrived(payload, now)
+                self.host.frame_arrived(payload, now)
         self.companion.discard_pending(now)
         self._heap = [e for e in pending if e[2] == _TO_MOCK]
-        self._carry(self.plumbing.bytes_to_send(now), now, _TO_MOCK)
+        self._carry(self.host.bytes_to_send(now), now, _TO_MOCK)
         for t, _, _, payload in sorted(self._heap):
             self.now_mono_us = max(self.now_mono_us, t)
             self.autopilot.receive_data(payload, t)
         self._heap.clear()
-        self.plumbing.notifier.stopping()
+        self.host.notifier.stopping()
         for reader in self.readers:
             reader.close()
-        return self.plumbing.summary(
+        return self.host.summary(
             (now - self.start_mono_us - self.model.companion_start_us) / 1e6,
             {r.source.name: r.stats for r in self.readers},
         )

@@ -38,8 +38,8 @@ _LAZY = {
     "FramesDirSource": ".frames_dir",
     "ScenarioSource": ".scenario_source",
     "DualFisheyeSource": ".dual_fisheye",
-    "CameraSettings": ".settings",
-    "FisheyeCameraSettings": ".settings",
+    "CameraSourceConfig": ".settings",
+    "FisheyeCameraConfig": ".settings",
     "open_source": ".settings",
     "register_source": ".settings",
 }

@@ -1,6 +1,6 @@
 """``[camera]`` of config.toml, and the registry that builds the configured source.
 
-:class:`CameraSettings` is a frozen dataclass of plain fields (str, int, float, bool,
+:class:`CameraSourceConfig` is a frozen dataclass of plain fields (str, int, float, bool,
 Literal, tuples, nested frozen dataclasses) so the config loader can map the TOML table
 onto it and type-check it; ranges are checked in ``__post_init__`` with errors that name
 the field. :func:`open_source` is the registry (python-can's ``can/interfaces``): one
@@ -11,7 +11,7 @@ simulator itself (:mod:`tcm_companion.sim.sources`), so that this layer does not
 the layer above it: the application registers them before it opens a camera.
 
 Note for config files: a nested table (``[camera.back]``) is built from
-:class:`FisheyeCameraSettings`'s own defaults, not from ``CameraSettings.back``'s
+:class:`FisheyeCameraConfig`'s own defaults, not from ``CameraSourceConfig.back``'s
 default (device "1", yaw 180°), so give every key of ``[camera.front]`` and
 ``[camera.back]`` when you write them.
 """
@@ -45,7 +45,7 @@ StaticBall = tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)
-class FisheyeCameraSettings:
+class FisheyeCameraConfig:
     """One camera of the dual-fisheye rig: device, image size, OpenCV fisheye intrinsics.
 
     Pixel coordinates follow ``tcm-scenario/1`` (``cx = width / 2`` is the exact centre,
@@ -101,12 +101,12 @@ class FisheyeCameraSettings:
         )
 
 
-def _back_default() -> FisheyeCameraSettings:
-    return FisheyeCameraSettings(device="1", mount_rpy_deg=(0.0, 0.0, 180.0))
+def _back_default() -> FisheyeCameraConfig:
+    return FisheyeCameraConfig(device="1", mount_rpy_deg=(0.0, 0.0, 180.0))
 
 
 @dataclass(frozen=True)
-class CameraSettings:
+class CameraSourceConfig:
     """Where the frames come from (``source``) and how to open it.
 
     The image size is the pipeline's camera model's (``[camera]`` of the scenario or
@@ -135,8 +135,8 @@ class CameraSettings:
     sim_heading_deg: float = 0.0  # the field's track direction, deg clockwise from north
     sim_ball_radius_m: float = 0.375  # crossing / headon ball radius, m
     sim_static_balls: tuple[StaticBall, ...] = ()  # static: [[n_m, e_m, d_m, radius_m], ...]
-    front: FisheyeCameraSettings = field(default_factory=FisheyeCameraSettings)  # dual_fisheye
-    back: FisheyeCameraSettings = field(default_factory=_back_default)  # dual_fisheye
+    front: FisheyeCameraConfig = field(default_factory=FisheyeCameraConfig)  # dual_fisheye
+    back: FisheyeCameraConfig = field(default_factory=_back_default)  # dual_fisheye
 
     def __post_init__(self) -> None:
         if self.source not in SOURCE_KINDS:
@@ -219,14 +219,14 @@ class CameraSettings:
 TruthFn = Callable[[int], "tuple[float, np.ndarray, np.ndarray] | None"]
 
 #: Builds the source of one kind: ``(settings, camera_model, truth_us, scenario) -> source``.
-SourceBuilder = Callable[["CameraSettings", "CameraModel", "TruthFn | None", str], FrameSource]
+SourceBuilder = Callable[["CameraSourceConfig", "CameraModel", "TruthFn | None", str], FrameSource]
 
 #: The module that registers each kind not built here (named in the error when it was not).
 REGISTERED_BY = {"sim": "tcm_companion.sim.sources", "sim_autopilot": "tcm_companion.sim.sources"}
 
 
 def _device(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
     from .opencv import OpenCVDevice
 
@@ -234,7 +234,7 @@ def _device(
 
 
 def _gstreamer(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
     from .opencv import GStreamerSource
 
@@ -242,7 +242,7 @@ def _gstreamer(
 
 
 def _file(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
     if not Path(s.path).is_file():
         raise CameraError(f"camera.path: no such file {s.path!r} (camera.source = 'file')")
@@ -254,7 +254,7 @@ def _file(
 
 
 def _frames(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
     if not Path(s.path).is_dir():
         raise CameraError(f"camera.path: no such directory {s.path!r} (camera.source = 'frames')")
@@ -266,7 +266,7 @@ def _frames(
     )
 
 
-def _probed(src: FrameSource, s: CameraSettings) -> FrameSource:
+def _probed(src: FrameSource, s: CameraSourceConfig) -> FrameSource:
     """``src`` (a file or a directory: nothing to wait for) once it has been opened and
     closed again, which reads its first frame: a file OpenCV cannot decode, or a directory
     without images, is refused now like a missing one, rather than retried for ever."""
@@ -280,7 +280,7 @@ def _probed(src: FrameSource, s: CameraSettings) -> FrameSource:
 
 
 def _scenario(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
     if not Path(s.path).is_dir():
         raise CameraError(f"camera.path: no such directory {s.path!r} (camera.source = 'scenario')")
@@ -299,7 +299,7 @@ def _scenario(
 
 
 def _dual_fisheye(
-    s: CameraSettings, cam: CameraModel, truth_us: TruthFn | None, scenario: str
+    s: CameraSourceConfig, cam: CameraModel, truth_us: TruthFn | None, scenario: str
 ) -> FrameSource:
     from ...core.camera import Equirectangular
 
@@ -317,7 +317,7 @@ def _dual_fisheye(
     from .dual_fisheye import DualFisheyeSource
     from .opencv import OpenCVDevice
 
-    def device(which: str, f: FisheyeCameraSettings) -> FrameSource:
+    def device(which: str, f: FisheyeCameraConfig) -> FrameSource:
         return OpenCVDevice(
             f.device,
             f.width,
@@ -352,7 +352,7 @@ def register_source(kind: str, builder: SourceBuilder) -> None:
 
 
 def open_source(
-    settings: CameraSettings,
+    settings: CameraSourceConfig,
     camera_model: CameraModel,
     *,
     truth_us: TruthFn | None = None,

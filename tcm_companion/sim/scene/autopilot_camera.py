@@ -46,7 +46,7 @@ NED origin, the ground at ``d = 0`` (the origin's — for ArduPilot the home —
 Its clutter keeps out of a rectangle 18 m either way along the track, 7 m left and 14 m
 right of it; a vehicle flying further out may meet trees, posts and a building.
 
-The scene (:class:`SceneSettings`) adds balls in the same local NED frame:
+The scene (:class:`SceneConfig`) adds balls in the same local NED frame:
 
 - ``"crossing"`` — a red ball on a collision course. It is launched at the first rendered
   tick where the vehicle flies steadily: horizontal speed ≥ ``launch_min_speed_mps``
@@ -104,7 +104,7 @@ if TYPE_CHECKING:
 __all__ = [
     "AutopilotSimCamera",
     "Launch",
-    "SceneSettings",
+    "SceneConfig",
     "SceneTruth",
     "check_url",
     "plan_launch",
@@ -125,7 +125,7 @@ _TRUTH_RECORDS = 1024  # rendered frames whose pose truth_at() remembers
 # The scene
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class SceneSettings:
+class SceneConfig:
     """What the simulated field holds besides its clutter (see the module docstring).
 
     Times in s, speeds in m/s, angles in degrees (``side_deg`` clockwise from the
@@ -199,7 +199,7 @@ class Launch:
 
 
 def plan_launch(
-    scene: SceneSettings, launch_us: int, pos_ned_m: FloatArray, vel_ned_mps: FloatArray
+    scene: SceneConfig, launch_us: int, pos_ned_m: FloatArray, vel_ned_mps: FloatArray
 ) -> Launch:
     """The ball of ``scene`` launched at ``launch_us`` from a vehicle at ``pos_ned_m``
     flying at ``vel_ned_mps`` (local NED; see the module docstring for the geometry).
@@ -414,7 +414,7 @@ class AutopilotSimCamera(FrameSource):
     """The simulated field seen from the pose the autopilot at ``url`` reports.
 
     ``camera_model``: the lens and image size (its mount is applied by the renderer);
-    ``scene``: what is in the field (:class:`SceneSettings`, default a crossing ball);
+    ``scene``: what is in the field (:class:`SceneConfig`, default a crossing ball);
     ``fps``: ticks per second on the companion clock; ``heading_deg``: the field's track
     direction, clockwise from north; ``seed``: the sensor-noise sequence; ``noise_dn``:
     sensor noise σ in digital numbers; ``system_id`` / ``component_id``: this camera's
@@ -430,7 +430,7 @@ class AutopilotSimCamera(FrameSource):
         self,
         camera_model: CameraModel,
         url: str = "tcp:127.0.0.1:5763",
-        scene: SceneSettings | None = None,
+        scene: SceneConfig | None = None,
         *,
         fps: float = 25.0,
         heading_deg: float = 0.0,
@@ -454,7 +454,7 @@ class AutopilotSimCamera(FrameSource):
             raise ValueError("attitude_hz and position_hz must be > 0, pose_wait_s >= 0")
         if not (1 <= system_id <= 255 and 1 <= component_id <= 255):
             raise ValueError("system_id and component_id must be in 1..255")
-        self.scene = scene if scene is not None else SceneSettings()
+        self.scene = scene if scene is not None else SceneConfig()
         super().__init__(
             name or f"sim_autopilot-{self.scene.kind}", camera_model.width, camera_model.height
         )

@@ -180,7 +180,7 @@ def run_length_text(duration_s: float, planned_s: float | None, stopped_by: str 
     return f"{word} after {duration_s:.1f}{of} ({stopped_by})"
 
 
-class Plumbing:
+class CompanionHost:
     """The driver-independent part of running a :class:`Companion` (module docstring)."""
 
     def __init__(

@@ -1,5 +1,5 @@
 """Open the flight log for a run: where it goes, what its metadata record holds, and the
-handle the daemon's plumbing writes through (:class:`~tcm_companion.flightlog.handle.FlightLog`).
+handle the companion host writes through (:class:`~tcm_companion.flightlog.handle.FlightLog`).
 
 The metadata record makes a log self-contained for process replay and export: the
 effective configuration (TOML), the parameter values at start, each camera's model, the
@@ -40,7 +40,7 @@ from .config import AppConfig, config_to_toml
 from .flightlog.handle import FlightLog
 from .flightlog.reader import log_files, parse_part_name
 from .flightlog.writer import FlightLogWriter
-from .service.plumbing import CameraInput
+from .service.host import CameraInput
 
 
 def log_directory(config: AppConfig, state_dir: Path | None = None) -> Path:

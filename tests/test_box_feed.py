@@ -263,6 +263,7 @@ def test_boxes_later_than_the_wait_are_counted_late_and_the_frames_go_on(flight:
     assert len(said) == 1 and re.fullmatch(r"TCM: box feed: \d+ late", said[0]), said
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_boxes_for_the_future_and_garbage_are_counted_and_harmless(flight: Any) -> None:
     """Every other datagram garbage, boxes stamped a second ahead (another clock), boxes
     outside the image, an unknown camera: all counted by kind, none used, nothing raised;
@@ -299,6 +300,7 @@ def test_boxes_for_the_future_and_garbage_are_counted_and_harmless(flight: Any) 
     assert re.search(r"TCM: box feed: \d+ malformed, \d+ unknown camera, \d+ future", text)
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_a_feed_that_stops_is_a_fault_until_it_resumes(flight: Any) -> None:
     """No message for box_feed_timeout_us: ``box feed stale`` (one fault, one STATUSTEXT),
     the last objects once more as unknown, frames stop waiting for boxes that are not
@@ -394,6 +396,7 @@ def tracking_bytes(
     return bytes(msg.pack(mav))
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_a_tracking_cameras_rectangle_is_the_frames_box(flight: Any) -> None:
     """CAMERA_TRACKING_IMAGE_STATUS through the endpoint: the rectangle, scaled to the
     image, is the box of the frame captured box_tracking_latency_us before it arrived;

@@ -95,6 +95,7 @@ def test_a_failed_replay_leaves_no_output(
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".results.csv")]
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_sim_export_into_an_existing_scenario_needs_force(tmp_path: Path) -> None:
     dest = tmp_path / "TS"
     args = ["sim", "export", "TS", str(dest), "--duration", "0.2", "--resolution", "90x55"]

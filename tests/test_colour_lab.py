@@ -254,6 +254,7 @@ def _red_frame(cam: CameraModel) -> np.ndarray:
 
 
 @pytest.mark.parametrize("cam_name", sorted(HUE_BEFORE))
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_the_red_target_is_unchanged_alone_and_mixed_with_lab_targets(cam_name: str) -> None:
     cam = CAMERAS[cam_name]
     img = _red_frame(cam)

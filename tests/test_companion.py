@@ -149,6 +149,7 @@ def test_a_newer_frame_replaces_an_unprocessed_one_and_the_old_one_is_dropped(
     assert comp.discard_pending(t2 + 41_000) == 1 and comp.stats.frames_dropped == 2
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_stale_attitude_makes_objects_unknown_and_is_reported(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 60)
@@ -244,6 +245,7 @@ def test_a_stale_camera_tells_the_autopilot_its_objects_are_unknown(flight: Any)
     assert len(drv.statuses()) == m
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_a_parameter_change_rebuilds_the_pipeline_and_keeps_the_telemetry(flight: Any) -> None:
     drv = Driver(*flight)
     drv.run(0, 40)
@@ -305,6 +307,7 @@ def test_parameters_that_cannot_be_applied_together_are_refused_not_raised(
     assert comp.pipeline(0).config.detection.seed_hue_deg == (-20.0, 12.0)
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_an_autopilot_reboot_clock_jump_is_survived(flight: Any) -> None:
     """The autopilot's boot clock restarts mid-flight: the fit restarts, objects recover."""
     scenario, frames = flight
@@ -459,6 +462,7 @@ def test_a_camera_is_slow_against_its_own_frame_rate(flight: Any) -> None:
         Companion([CAMERA], PipelineConfig(), CompanionEndpoint(now_us=0), 0, camera_rates_hz=[0.0])
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_an_overloaded_pipeline_is_one_fault_and_decisions_go_on(flight: Any) -> None:
     """A pipeline that gets to only every other frame (each frame superseded by the next
     before it was processed, as on a slow core) is ``overloaded``: one fault, one

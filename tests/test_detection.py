@@ -219,6 +219,7 @@ def test_shaded_disc_radius_within_2pct_and_bearing_within_0p1_px(
     assert not dets[0].touches_border
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_highlight_inside_the_ball_is_part_of_it() -> None:
     cam = CAMERAS["pinhole"]
     ball = ball_at(5.0, -15.0, 6.0)
@@ -546,6 +547,7 @@ def test_no_red_returns_nothing() -> None:
     assert detector("equirectangular").detect(render(cam, [])) == []
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_detection_fields_are_consistent() -> None:
     cam = CAMERAS["pinhole"]
     ball = ball_at(10.0, -10.0, 4.0)

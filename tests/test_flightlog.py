@@ -652,6 +652,7 @@ def test_rotation_by_size(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
     assert mav == [i.to_bytes(2, "little") for i in range(40)]
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_rotation_by_time(tmp_path: Path, sim_frames: list[np.ndarray]) -> None:
     cfg = LoggingConfig(rotate_interval_s=0.25, flush_interval_s=0.05)
     w = FlightLogWriter(cfg, tmp_path, wall_minus_mono_ns=WALL)
@@ -749,6 +750,7 @@ def failing_disk(monkeypatch: pytest.MonkeyPatch) -> dict[str, bool]:
     return broken
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_write_error_faults_then_recovers(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     broken = failing_disk(monkeypatch)
     w, events = writer_with_events(tmp_path, retry_interval_s=0.1)
@@ -864,6 +866,7 @@ def test_a_deterministic_writer_sleeps_while_its_queue_is_empty(tmp_path: Path) 
     assert w.stats.writer_cpu_s < 0.2, w.stats.writer_cpu_s
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_a_live_writer_is_woken_by_frames_not_by_every_item(tmp_path: Path) -> None:
     """Live, the writer thread wakes for a frame (25 Hz), a half-full queue, its own
     timers or stop, and writes what came in meanwhile with it: a wake-up per MAVLink

@@ -236,6 +236,7 @@ def test_skipped_frames_and_restart() -> None:
 
 
 @pytest.mark.parametrize("fb_every", [2, 3])
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_staggered_forward_backward_check(fb_every: int) -> None:
     """Each track is checked once per fb_every frames, a share of them every frame."""
     n_points = 300

@@ -8,6 +8,7 @@ import heapq
 import random
 
 import numpy as np
+import pytest
 
 from tcm_companion.core.classify import Classification
 from tcm_companion.core.frames import bearing_from_azel
@@ -149,6 +150,7 @@ def test_closed_loop_brake_on_collision_alarm() -> None:
     assert speed < 0.05
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_link_over_udp_with_the_mock_runner() -> None:
     from tcm_companion.io.transports import open_transport
     from tcm_companion.sim.vehicle.mock_autopilot_run import run_mock_autopilot

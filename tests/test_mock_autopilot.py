@@ -694,6 +694,7 @@ def test_truncated_frames() -> None:
     assert c.of("TIMESYNC")[-1].ts1 == 444_000
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_oversized_input() -> None:
     ap, c = make()
     c.send_bytes(b"\xfd\xff" * 600_000)  # 1.2 MB of frame starts that never complete
@@ -757,6 +758,7 @@ def test_bad_crc() -> None:
     assert _still_answers(c)
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_flood() -> None:
     ap, c = make(max_tx_bytes=16 * 1024, max_records=1000)
     burst = b"".join(c.codec.encode(timesync_request(c, 1000 * i)) for i in range(1, 5001))

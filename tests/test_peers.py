@@ -418,6 +418,7 @@ def test_the_health_interval_cannot_be_set_to_spin_the_loop() -> None:
     assert ep.config.health_interval_us == 200_000
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_timesync_is_the_autopilots_alone() -> None:
     """ArduPilot forwards our TIMESYNC request to its other links, where a ground
     station may answer with its own clock; a spoofer under the autopilot's id may answer

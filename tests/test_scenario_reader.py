@@ -287,6 +287,7 @@ def test_truth_time_to_contact_is_range_over_closing_speed() -> None:
     assert list(truth.rows_for_object(2)) == list(range(n, 2 * n))
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_frames_are_read_ahead_in_order_and_the_reader_thread_ends(tmp_path: Path) -> None:
     """The next PNG is decoded on a thread while the caller works on this one: the images
     and their order are those of reading each one when asked, a bad frame is still

@@ -251,6 +251,7 @@ def test_runs_of_unknown_ids_and_bad_crcs_cost_one_record_each_not_a_resync() ->
     assert unknown == 10 - 2 - len(got) and unknown >= 3
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_scenario_sized_damage_is_resynchronised_quickly() -> None:
     """The resynchronising scan is linear: 200 kB of MAVLink magic bytes (a candidate
     record at every byte) cost well under a few seconds."""

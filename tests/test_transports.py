@@ -584,6 +584,7 @@ def test_serial_url_forms() -> None:
     assert (t.path, t.baudrate) == (by_path, 115200)
 
 
+@pytest.mark.slow  # 0.65-1.3 s of a test worker (make test-fast --durations, 2026-12-03)
 def test_reconnecting_link_that_never_comes_up_backs_off_and_does_not_hang() -> None:
     async def body() -> None:
         server = TcpServer()

@@ -5,8 +5,8 @@ the signal (130 for SIGINT) if one cut it short (docs/daemon.md, "Stopping and e
 status"). ``run`` with ``[camera] source = "sim"`` flies the same real-time SITL
 (:func:`run_sitl_until`).
 
-asyncio and everything beyond the standard library are imported by the command, not
-here (see :mod:`.common`).
+Like every command module, this one leaves asyncio and what lies beyond the standard
+library to the command's own imports (:mod:`.common`).
 """
 
 from __future__ import annotations

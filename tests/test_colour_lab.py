@@ -25,7 +25,7 @@ from tcm_companion.core.camera import CameraModel
 from tcm_companion.core.detection import ColourDetector, ColourTarget, Detection, DetectionConfig
 from tcm_companion.core.detection.settings import _HUE_KEYS, _LAB_KEYS
 
-from .test_detection import (
+from .detection_scene import (
     CAMERAS,
     Background,
     Ball,

@@ -15,20 +15,20 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import re
 import shutil
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from tcm_companion import cli
 from tcm_companion.flightlog import topics
-from tcm_companion.flightlog.reader import check_log, part_name
+from tcm_companion.flightlog.reader import check_log
+
+from .helpers import REFERENCE_LOG as REFERENCE
+from .helpers import split_log
 
 ROOT = Path(__file__).resolve().parents[1]
-REFERENCE = ROOT / "tests" / "data" / "logs" / "sitl-t90.mcap"
 EXAMPLE = ROOT / "tests" / "data" / "examples" / "EX-T90"
 
 
@@ -159,67 +159,6 @@ def test_check_with_a_tolerance_accepts_rounding_and_nothing_more(
     assert rc == 1, (out, err)
     assert "check failed: 1 frame(s) differ from the flight beyond 1e-09 relative" in err
     assert f"frame {edited[0]} " in out
-
-
-def split_log(
-    src: Path,
-    dst: Path,
-    n: int,
-    edit: Callable[[str, bytes], bytes] | None = None,
-    drop: Callable[[str, int], bool] | None = None,
-) -> list[Path]:
-    """``src`` rewritten as ``n`` parts of a log directory (each with the metadata, the
-    messages in their order, 128 KiB chunks), as the writer's rotation would leave it;
-    ``edit(topic, data)`` may change a message's data on the way, and a message for which
-    ``drop(topic, publish_time_ns)`` is true is left out."""
-    from mcap.records import Channel, Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader
-    from mcap.writer import Writer
-
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    metadata: list[Metadata] = []
-    messages: list[Message] = []
-    with open(src, "rb") as fh:
-        for rec in StreamReader(fh).records:
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Metadata):
-                metadata.append(rec)
-            elif isinstance(rec, Message):
-                messages.append(rec)
-    dst.mkdir()
-    per = math.ceil(len(messages) / n)
-    paths = []
-    for k in range(n):
-        path = dst / part_name("20260101-120000", k)
-        with open(path, "wb") as fh:
-            w = Writer(fh, chunk_size=128 * 1024)
-            w.start()
-            for m in metadata:
-                w.add_metadata(m.name, m.metadata)
-            ids: dict[int, int] = {}
-            for msg in messages[k * per : (k + 1) * per]:
-                if drop is not None and drop(channels[msg.channel_id].topic, msg.publish_time):
-                    continue
-                if msg.channel_id not in ids:
-                    ch = channels[msg.channel_id]
-                    sid = 0
-                    if ch.schema_id:
-                        s = schemas[ch.schema_id]
-                        sid = w.register_schema(s.name, s.encoding, s.data)
-                    ids[msg.channel_id] = w.register_channel(
-                        ch.topic, ch.message_encoding, sid, ch.metadata
-                    )
-                data = msg.data if edit is None else edit(channels[msg.channel_id].topic, msg.data)
-                w.add_message(
-                    ids[msg.channel_id], msg.log_time, data, msg.publish_time, msg.sequence
-                )
-            w.finish()
-        paths.append(path)
-    return paths
 
 
 @pytest.mark.slow  # over half a second of CPU

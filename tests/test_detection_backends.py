@@ -40,7 +40,7 @@ from tcm_companion.core.frames import angle_between
 from tcm_companion.core.pipeline import Pipeline, PipelineConfig
 from tcm_companion.io.detector_model import read_detector_model
 
-from .test_detection import CAMERAS, Ball, ball_at, render
+from .detection_scene import CAMERAS, Ball, ball_at, render
 from .yolo_graphs import constant_model, red_box_model
 
 BACKEND_NAMES = ("colour", "boxes", "onnx")

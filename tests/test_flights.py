@@ -29,7 +29,8 @@ from tcm_companion.flightlog.reader import (
 )
 from tcm_companion.sitl.mock_flight import SitlReport, run_sitl_virtual
 
-from .test_damaged_inputs import REFERENCE, split_log
+from .helpers import REFERENCE_LOG as REFERENCE
+from .helpers import split_log
 
 REFERENCE_FRAMES = 61  # processed frames of tests/data/logs/sitl-t90.mcap
 

@@ -357,7 +357,7 @@ def _check_pngs(paths: list[Path], names: set[str]) -> None:
 def test_plot_log_draws_every_plot(flight: Flight, tmp_path: Path) -> None:
     from tcm_companion.logtools.plot import build_figures, load_log_data
 
-    from .test_plots import assert_legends_clear
+    from .plot_checks import assert_legends_clear
 
     files = plot_log(flight.log_dir, tmp_path / "plots")  # the rotated-directory form
     _check_pngs(files, set(PLOT_NAMES))

@@ -50,3 +50,41 @@ def preset_camera(
     else:
         raise ValueError(f"unknown camera preset {name!r} (known: {', '.join(PRESETS)})")
     return cam if resolution is None else cam.scaled(*resolution)
+
+
+#: The simulator's camera rigs (``--rig``): several cameras on one vehicle, each a
+#: ``(name, lens)``. ``panorama`` is the paper's single 360° camera (the default).
+RIGS = ("panorama", "quad", "front-back")
+
+#: A rig pinhole: 320×240 over 100° horizontally (fx = 160 / tan 50°), level, no
+#: distortion; ``quad`` puts four at 0/90/180/270° (10° overlap between neighbours),
+#: ``front-back`` two at 0 and 180° (the sides 50°..130° unseen at the horizon).
+_RIG_HFOV_DEG = 100.0
+_RIG_SIZE = (320, 240)
+_RIG_YAWS_DEG = {
+    "quad": (("front", 0.0), ("right", 90.0), ("rear", 180.0), ("left", -90.0)),
+    "front-back": (("front", 0.0), ("rear", 180.0)),
+}
+
+
+def rig_cameras(
+    name: str, resolution: tuple[int, int] | None = None
+) -> list[tuple[str, CameraModel]]:
+    """The cameras of rig ``name`` (:data:`RIGS`) as ``(camera name, lens)``, in camera-id
+    order; ``resolution`` rescales each lens to another image size."""
+    import math
+
+    if name == "panorama":
+        cams: list[tuple[str, CameraModel]] = [("camera0", Equirectangular(360, 220))]
+    elif name in _RIG_YAWS_DEG:
+        w, h = _RIG_SIZE
+        f = (w / 2) / math.tan(math.radians(_RIG_HFOV_DEG / 2))
+        cams = [
+            (cam_name, Pinhole(w, h, (0.0, 0.0, yaw), fx=f, fy=f, cx=w / 2, cy=h / 2))
+            for cam_name, yaw in _RIG_YAWS_DEG[name]
+        ]
+    else:
+        raise ValueError(f"unknown camera rig {name!r} (known: {', '.join(RIGS)})")
+    if resolution is None:
+        return cams
+    return [(n, c.scaled(*resolution)) for n, c in cams]

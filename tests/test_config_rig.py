@@ -398,3 +398,20 @@ def test_run_refuses_a_rig_it_cannot_open(
     assert len(err) == 2 and err[1].startswith(
         f'error: {config}: [cameras.rear] source = "scenario" plays a one-camera scenario'
     )
+
+
+def test_the_rig_example_of_config_toml_loads() -> None:
+    """config.toml's commented [[cameras]] example, uncommented in place of [camera]."""
+    text = (Path(__file__).resolve().parents[1] / "config.toml").read_text(encoding="utf-8")
+    lines = text.splitlines()
+    start = lines.index("# [[cameras]]")
+    example = []
+    for line in lines[start:]:
+        if not line.startswith("#"):
+            break
+        example.append(line.removeprefix("#").removeprefix(" "))
+    cfg = config_from_dict(tomllib.loads("\n".join(example)))
+    assert [c.name for c in cfg.cameras] == ["front", "rear"]
+    cov = horizon_coverage([c.model for c in cfg.cameras])
+    assert [round(cov.fov_deg(i)) for i in (0, 1)] == [100, 100] and cov.unseen_deg == 160.0
+    assert rig_source_problems(cfg) == []

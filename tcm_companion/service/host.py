@@ -21,6 +21,7 @@ Every time is µs on the companion monotonic clock (``_mono_us``) the driver run
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
@@ -217,7 +218,7 @@ class CompanionHost:
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
         self.health_checks = 0
-        self.processed_per_camera = [0] * len(self.cameras)
+        self.processed_by_camera: Counter[int] = Counter()  # frames sent, by camera id
         self._log_doc: dict[str, Any] = {}
 
     # -- inputs ---------------------------------------------------------------------------
@@ -314,7 +315,7 @@ class CompanionHost:
         for out in outputs:
             if not isinstance(out, FrameProcessed) or out.result is None:
                 continue
-            self.processed_per_camera[out.camera_id] += 1
+            self.processed_by_camera[out.camera_id] += 1
             latency_ms = self.companion.frame_sent(out, sent_mono_us)
             if latency_ms is not None:
                 self.latencies_ms.append(latency_ms)
@@ -441,5 +442,5 @@ class CompanionHost:
             box_feed=comp.box_feed_counts() if comp.box_feed else {},
             link=comp.link_counts(),
             camera_names=[c.name for c in self.cameras],
-            processed_per_camera=list(self.processed_per_camera),
+            processed_per_camera=[self.processed_by_camera[i] for i in range(len(self.cameras))],
         )

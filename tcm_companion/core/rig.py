@@ -256,6 +256,10 @@ class RigTracker:
                 rt.measuring = min(rt.bound)
         self._last_frame.pop(camera_id, None)
 
+    def has_track(self, rig_id: int) -> bool:
+        """Whether rig track ``rig_id`` is still kept (some camera may report it)."""
+        return rig_id in self._tracks
+
     # -- internals -----------------------------------------------------------------------
     def _unbind(self, key: tuple[int, int]) -> None:
         rid = self._binding.pop(key)

@@ -353,3 +353,82 @@ def test_a_rendered_object_in_the_overlap_is_reported_once_per_frame_cycle(cross
     per_cycle = {i: sum(1 for j, *_ in fused if j == i) for i in seen}
     assert len(both) >= 5  # the object spends frames in the overlap
     assert set(per_cycle.values()) == {1}
+
+
+# -- the Companion with a rig -------------------------------------------------------------
+def scripted(script: Callable[[int, int], FrameResult]) -> Callable[[np.ndarray, int], FrameResult]:
+    """A camera pipeline's ``step`` that returns the result ``script`` gives for the
+    frame's number and capture time (the Companion's rig fuses it)."""
+    count = [0]
+
+    def step(image: np.ndarray, t_us: int) -> FrameResult:
+        count[0] += 1
+        return script(count[0] - 1, t_us)
+
+    return step
+
+
+def test_the_companion_builds_a_rig_for_two_cameras_only() -> None:
+    from tcm_companion.mavlink.endpoint import CompanionEndpoint
+    from tcm_companion.service.companion import Companion
+
+    one = Companion([QUAD[0]], PipelineConfig(), CompanionEndpoint(now_us=0), 0)
+    assert one.rig is None and not one.pipeline(0).config.always_translate
+    two = Companion(FRONT_RIGHT, PipelineConfig(), CompanionEndpoint(now_us=0), 0)
+    assert isinstance(two.rig, RigTracker)
+    assert all(two.pipeline(k).config.always_translate for k in (0, 1))
+    rig = two.rig
+    two._rebuild(two.cameras[0])  # a parameter change or repeated errors
+    assert two.rig is rig and two.pipeline(0).config.always_translate
+
+
+def test_a_lost_camera_makes_only_what_it_alone_measured_unknown(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from tcm_companion.mavlink.endpoint import CompanionEndpoint
+    from tcm_companion.service.companion import Companion
+
+    from .helpers import decode
+
+    endpoint = CompanionEndpoint(now_us=0)
+    comp = Companion(FRONT_RIGHT, PipelineConfig(), endpoint, 0, camera_names=["front", "right"])
+    front, right = FRONT_RIGHT
+    decided = Classification("stationary", "", disparity=0.01)
+    front_step = scripted(
+        lambda i, t: frame(
+            i, t, view(front, 1, az(0.0), classification=decided), view(front, 2, az(44.0))
+        )
+    )
+    right_step = scripted(
+        lambda i, t: frame(
+            i, t, view(right, 1, az(44.0)), view(right, 2, az(90.0), classification=decided)
+        )
+    )
+    monkeypatch.setattr(comp.pipeline(0), "step", front_step)
+    monkeypatch.setattr(comp.pipeline(1), "step", right_step)
+    image = np.zeros((front.height, front.width, 3), np.uint8)
+    now = 0
+    for i in range(40):  # 1.6 s: both cameras for 0.4 s, then the right camera alone
+        now = 100_000 + i * PERIOD_US
+        cams = (0, 1) if i < 10 else (1,)
+        for k in cams:
+            comp.on_frame(k, image, now, now + 1_000)
+        for t in range(now + 1_000, now + PERIOD_US, 5_000):
+            comp.process_due(t)
+        if i == 9:
+            endpoint.data_to_send()  # what went before the loss
+            # The front camera measures the object both see (it was first; no better view).
+            assert [o.track_id for o in comp.last_objects(0)] == [1, 2]
+            assert [o.track_id for o in comp.last_objects(1)] == [3]
+    assert comp.stats.faults["front stale"] == 1
+    rig = comp.rig
+    assert rig is not None and not rig.has_track(1) and rig.has_track(2) and rig.has_track(3)
+    unknown_sent = [
+        m.track_id
+        for m in decode(endpoint.data_to_send())
+        if m.get_type() == "TCM_OBJECT_STATUS" and m.state == 0
+    ]
+    # Only the object the front camera alone saw is sent as unknown; the right camera
+    # goes on reporting the one both saw, under its rig id.
+    assert unknown_sent == [1]
+    assert sorted(o.track_id for o in comp.last_objects(1)) == [2, 3]

@@ -487,6 +487,15 @@ def test_a_rigs_flight_log_replays_every_camera_exactly(
     assert [d for f in frames for d in compare(f)] == []  # bit-exact, every camera
     # The ball (on the right, T90) is one rig track, measured by the right camera.
     assert {(f.camera_id, o.track_id) for f in frames for o in f.result.objects} == {(1, 1)}
+    # On the wire: that one track, with the camera that measured it.
+    from tcm_companion.flightlog import topics
+    from tcm_companion.flightlog.reader import read_log
+
+    from .helpers import decode
+
+    sent = b"".join(rec.data for rec in read_log(log, {topics.MAVLINK_OUT}))
+    statuses = [m for m in decode(sent) if m.get_type() == "TCM_OBJECT_STATUS"]
+    assert statuses and {(m.track_id, m.camera_id) for m in statuses} == {(1, 1)}
     capsys.readouterr()
     csv_path = tmp_path / "r.csv"
     assert cli.main(["replay", str(log), "--results", str(csv_path), "--check"]) == 0

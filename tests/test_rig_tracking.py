@@ -382,8 +382,16 @@ def test_the_companion_builds_a_rig_for_two_cameras_only() -> None:
     assert isinstance(two.rig, RigTracker)
     assert all(two.pipeline(k).config.always_translate for k in (0, 1))
     rig = two.rig
-    two._rebuild(two.cameras[0])  # a parameter change or repeated errors
+    two._rebuild(two.cameras[0])  # repeated errors
     assert two.rig is rig and two.pipeline(0).config.always_translate
+    # A parameter change rebuilds every pipeline; the rig stays and decides with it.
+    from tcm_companion.mavlink import tcm_dialect as d
+
+    mav = d.MAVLink(None, srcSystem=255, srcComponent=190)
+    param_set = mav.param_set_encode(1, 191, b"TCM_THRESH", 0.2, d.MAV_PARAM_TYPE_REAL32)
+    two.receive_data(bytes(param_set.pack(mav)), 1_000)
+    assert two.pipeline(1).config.classifier.tcm_threshold == pytest.approx(0.2)
+    assert two.rig is rig and rig.pipeline_config == two.pipeline(1).config
 
 
 def test_a_lost_camera_makes_only_what_it_alone_measured_unknown(

@@ -173,10 +173,6 @@ class RigTracker:
         self.pipeline_config = pipeline_config
         self.config = config
         self.stats: dict[str, int] = {"handovers": 0, "merged": 0, "rig_tracks": 0}
-        cls = pipeline_config.classifier
-        self._fit_half_us = round(0.5 * cls.fit_window_for(pipeline_config.detection.backend) * 1e6)
-        span_s = cls.longest_interval_s + cls.interval_tolerance_s + 2 * self._fit_half_us * 1e-6
-        self._history_us = round(span_s * 1e6)
         # Distance (px) of every pixel centre from the image's edge or the lens's valid
         # area, and the pixel's angular size: a view's margin to its border, any lens.
         self._border_px: list[np.ndarray] = []
@@ -190,6 +186,20 @@ class RigTracker:
         # Per-camera tracks replaced by a newer track of the same camera for their object.
         self._retired: set[tuple[int, int]] = set()
         self._next_id = 1
+
+    @property
+    def pipeline_config(self) -> PipelineConfig:
+        """The pipelines' configuration (its classifier decides the cross-camera pairs);
+        set it when the pipelines are rebuilt with another (the rig tracks stay)."""
+        return self._pipeline_config
+
+    @pipeline_config.setter
+    def pipeline_config(self, value: PipelineConfig) -> None:
+        self._pipeline_config = value
+        cls = value.classifier
+        self._fit_half_us = round(0.5 * cls.fit_window_for(value.detection.backend) * 1e6)
+        span_s = cls.longest_interval_s + cls.interval_tolerance_s + 2 * self._fit_half_us * 1e-6
+        self._history_us = round(span_s * 1e6)
 
     # -- the interface -------------------------------------------------------------------
     def fuse(self, camera_id: int, result: FrameResult) -> FrameResult:

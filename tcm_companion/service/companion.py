@@ -65,6 +65,11 @@ Policies that live here:
   whether a waiting frame stays when a newer one arrives.
 - **Parameter changes** from the ground station that touch the pipeline rebuild it with
   the new configuration (the shared telemetry is kept; objects warm up again).
+- **One object, one track** with two cameras or more: every camera's result goes through
+  one :class:`~tcm_companion.core.rig.RigTracker` (rig-wide track ids, each object
+  reported by the camera that sees it best, a track entering from another camera's view
+  decided with that history). A lost camera makes only what it alone measured unknown;
+  OBSTACLE_DISTANCE covers every camera. One camera: no rig, results as before.
 - **Nothing is sent before the autopilot's boot clock is known** (TIMESYNC or the
   telemetry): a ``time_boot_ms`` of 0 would read as ancient.
 - **Once a second** (``health_interval_us``, on absolute deadlines that skip rather
@@ -576,6 +581,8 @@ class Companion:
         self.pipeline_config = new
         for cam in self.cameras:
             self._rebuild(cam)
+        if self.rig is not None:  # its tracks bridge the pipelines' warm-up
+            self.rig.pipeline_config = new
         self.endpoint.statustext(d.MAV_SEVERITY_INFO, "TCM: parameters applied", now_mono_us)
 
     def _rebuild(self, cam: CameraSlots) -> None:

@@ -542,6 +542,16 @@ class Companion:
             return result
         return self.rig.fuse(cam.camera_id, result)
 
+    def _rig_camera_lost(self, cam: CameraSlots) -> None:
+        """A rig forgets what only camera ``cam`` measured (:meth:`.RigTracker.camera_lost`)
+        and keeps in its last objects only those, to be sent once as unknown; what another
+        camera sees too goes on there. Nothing with one camera."""
+        rig = self.rig
+        if rig is None:
+            return
+        rig.camera_lost(cam.camera_id)
+        cam.last_objects = tuple(o for o in cam.last_objects if not rig.has_track(o.track_id))
+
     def replay_frame(
         self,
         camera_id: int,
@@ -682,14 +692,8 @@ class Companion:
                     else [c for c in self.cameras if c.name == name]
                 )
                 for cam in cams:
-                    if self.rig is not None and name != BOX_FEED:
-                        # A rig forgets what only this camera measured; what another camera
-                        # sees too goes on there (not made unknown).
-                        self.rig.camera_lost(cam.camera_id)
-                        rig = self.rig
-                        cam.last_objects = tuple(
-                            o for o in cam.last_objects if not rig.has_track(o.track_id)
-                        )
+                    if name != BOX_FEED:
+                        self._rig_camera_lost(cam)
                     if not cam.last_objects:
                         continue
                     # Tell the autopilot once that what it last heard is no longer known.

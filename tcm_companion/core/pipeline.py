@@ -279,10 +279,6 @@ class Pipeline:
         live = {tr.track_id for tr in tracks}
         for tid in [t for t in self._memory if t not in live]:
             del self._memory[tid]
-        t4 = clock()
-        timings["bsm"] = self._bsm_s * 1e3
-        timings["classify"] = (t4 - t3 - self._bsm_s) * 1e3
-        timings["total"] = (t4 - t_start) * 1e3
         # The translation reported: the default interval's, ending at this frame (with a
         # fit window, at the frame half a window back, where the pairs end).
         end = self._frame_near(frame_time_us - self._fit_half_us) if self._fit_half_us else None
@@ -292,6 +288,10 @@ class Pipeline:
             key = (default_ref.index, end_index)
             if key not in cache and default_ref.index != end_index:
                 cache[key] = self._translation(*key)
+        t4 = clock()
+        timings["bsm"] = self._bsm_s * 1e3
+        timings["classify"] = (t4 - t3 - self._bsm_s) * 1e3
+        timings["total"] = (t4 - t_start) * 1e3
         return FrameResult(
             index,
             frame_time_us,

@@ -229,6 +229,28 @@ def run_crossing(scene: Crossing, with_rig: bool) -> list[tuple[float, int, Obje
     return out
 
 
+def test_a_rebuilt_pipelines_warm_up_is_decided_from_the_rig_tracks_history() -> None:
+    """One camera sees a stationary object for 1.2 s (decided after 1 s), then its
+    pipeline is rebuilt (a parameter change): the new track's warm-up is decided from
+    the rig track's earlier observations, as one camera's handover to itself."""
+    scene, front = Crossing(moving=False), FRONT_RIGHT[0]
+    rig = RigTracker(FRONT_RIGHT, CONFIG)
+    stationary = Classification("stationary", "", disparity=0.0)
+    states = []
+    for i in range(35):  # az 27° -> 42°: whole in the front camera
+        t_s = i * PERIOD_US * 1e-6
+        rebuilt = i >= 30
+        own = stationary if (t_s >= 1.0 and not rebuilt) else None
+        obj = view(
+            front, 1 if rebuilt else 5, scene.bearing(t_s), scene.alpha(t_s), classification=own
+        )
+        result = frame(i - 30 if rebuilt else i, round(t_s * 1e6), obj, translation=NORTH)
+        (out,) = rig.fuse(0, result).objects
+        states.append((out.track_id, out.state))
+    assert states[:25] == [(1, "unknown")] * 25  # its first second: warm-up
+    assert states[25:] == [(1, "stationary")] * 10  # before and after the rebuild
+
+
 @pytest.mark.parametrize("moving", [False, True])
 def test_a_cross_camera_pair_decides_the_new_cameras_young_track(moving: bool) -> None:
     scene = Crossing(moving)

@@ -102,6 +102,7 @@ class _RigTrack:
     measuring: int  # the camera whose results report it
     history: list[_RigObservation]  # every camera's views, by capture time
     bound: dict[int, int] = field(default_factory=dict)  # camera id -> its track id
+    bound_us: dict[int, int] = field(default_factory=dict)  # ... since (capture time)
     views: dict[int, _View] = field(default_factory=dict)
     cameras: set[int] = field(default_factory=set)  # every camera it was ever bound to
     memory: deque[tuple[int, Classification]] = field(default_factory=deque)
@@ -145,9 +146,11 @@ class _RigTrack:
         return best
 
 
-#: A camera's own result that the rig may decide from a cross-camera pair: its track is
-#: too young for a pair of its own, or its pair's other end was cut by the image border
-#: (as an object comes into view from a neighbouring camera's).
+#: A camera's own result that the rig may decide from a pair over the rig track's history
+#: (an end seen by another camera, or by an earlier track of this camera: one its tracker
+#: lost, a rebuilt pipeline's): its track is too young for a pair of its own, or its
+#: pair's other end was cut by the image border (as an object comes into view from a
+#: neighbouring camera's).
 CROSS_PAIR_REASONS = frozenset({"warm-up", "at image border"})
 
 
@@ -316,11 +319,12 @@ class RigTracker:
         self._next_id += 1
         self.stats["rig_tracks"] += 1
         self._tracks[rt.rig_id] = rt
-        self._bind(rt, camera_id, track_id)
+        self._bind(rt, camera_id, track_id, t_us)
         return rt
 
-    def _bind(self, rt: _RigTrack, camera_id: int, track_id: int) -> None:
+    def _bind(self, rt: _RigTrack, camera_id: int, track_id: int, t_us: int) -> None:
         rt.bound[camera_id] = track_id
+        rt.bound_us[camera_id] = t_us
         rt.cameras.add(camera_id)
         self._binding[(camera_id, track_id)] = rt.rig_id
 
@@ -381,7 +385,7 @@ class RigTracker:
                     # The camera's old track of the object coasts out, unreported.
                     self._binding.pop((k, old), None)
                     self._retired.add((k, old))
-                self._bind(rt, k, obj.track_id)
+                self._bind(rt, k, obj.track_id, t_us)
                 assigned.add(obj.track_id)
         for obj in new:
             if obj.track_id not in assigned:
@@ -474,8 +478,11 @@ class RigTracker:
         if cur is None:
             return None
         ref = rt.nearest(cur.t_us - round(cls.interval_s * 1e6), tol_us, cur.t_us - 1, same_us)
-        if ref is None or (ref.camera_id == k and cur.camera_id == k):
-            return None  # not a cross-camera pair: the camera's own pipeline decides
+        if ref is None:
+            return None
+        if ref.camera_id == k and cur.camera_id == k and ref.t_us >= rt.bound_us.get(k, 0):
+            # Both ends seen by this camera's present track: its own pipeline decides.
+            return None
         b1 = cur.bearing_ned
         if self.pipeline_config.egomotion_rotation_correction and est.rotation_ned_rad.any():
             b1 = rotate_by_vector(b1, est.rotation_ned_rad)

@@ -41,7 +41,7 @@ class RigConfig:
 
     # A per-camera track seen for the first time joins a rig track whose predicted NED
     # bearing is within gate_rad + gate_radius_factor * (the larger angular radius) (the
-    # per-camera tracker's gate: docs/decisions.md §"Camera rigs").
+    # per-camera tracker's gate; docs/decisions.md §11).
     gate_rad: float = math.radians(4.0)
     gate_radius_factor: float = 1.5
     # ... and whose size agrees: |ln(α_new / α_rig)| at most this (not checked for a view

@@ -93,8 +93,9 @@ class PipelineConfig:
     egomotion_rotation_correction: bool = True
     # Compute the default interval's translation at every frame, even when no track's
     # pair needed it (FrameResult.translation): a camera rig decides a young track that
-    # continues another camera's object with it (core.rig). Off for one camera.
-    always_translate: bool = False
+    # continues another camera's object with it (core.rig). None (unset, and so left out
+    # of a written configuration): off; the Companion sets True for two cameras or more.
+    always_translate: bool | None = None
 
 
 @dataclass(frozen=True)

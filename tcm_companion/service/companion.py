@@ -65,6 +65,11 @@ Policies that live here:
   whether a waiting frame stays when a newer one arrives.
 - **Parameter changes** from the ground station that touch the pipeline rebuild it with
   the new configuration (the shared telemetry is kept; objects warm up again).
+- **One object, one track** with two cameras or more: every camera's result goes through
+  one :class:`~tcm_companion.core.rig.RigTracker` (rig-wide track ids, each object
+  reported by the camera that sees it best, a track entering from another camera's view
+  decided with that history). A lost camera makes only what it alone measured unknown;
+  OBSTACLE_DISTANCE covers every camera. One camera: no rig, results as before.
 - **Nothing is sent before the autopilot's boot clock is known** (TIMESYNC or the
   telemetry): a ``time_boot_ms`` of 0 would read as ancient.
 - **Once a second** (``health_interval_us``, on absolute deadlines that skip rather
@@ -75,6 +80,7 @@ Policies that live here:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
@@ -85,6 +91,7 @@ import numpy as np
 from ..core.camera import CameraModel
 from ..core.egomotion import TranslationEstimate
 from ..core.pipeline import FrameResult, ObjectResult, Pipeline, PipelineConfig
+from ..core.rig import RigTracker
 from ..core.telemetry import AttitudeSample, PositionSample, TelemetryBuffer
 from ..mavlink import tcm_dialect as d
 from ..mavlink.endpoint import (
@@ -162,6 +169,10 @@ class Companion:
             raise ValueError(f"camera rates must be positive frames per second, got {rates}")
         self.config = config
         self.endpoint = endpoint
+        if len(cameras) >= 2:
+            # A rig: every camera's translation at every frame, for the cross-camera pairs
+            # of core.rig (one camera stays exactly as it was).
+            pipeline_config = dataclasses.replace(pipeline_config, always_translate=True)
         self.base_pipeline_config = pipeline_config
         # A PARAM_SET whose value passes its own range but cannot be applied with the
         # others (a seed hue range leaving the grow range) is refused by the endpoint,
@@ -190,6 +201,8 @@ class Companion:
         self.cameras = [
             CameraSlots(i, names[i], cam, self._new_pipeline(cam)) for i, cam in enumerate(cameras)
         ]
+        # Two cameras or more: one track per object across the rig (core.rig).
+        self.rig = RigTracker(cameras, self.pipeline_config) if len(cameras) >= 2 else None
         specs = [
             InputSpec(c.name, rate, config.camera_timeout_us)
             for c, rate in zip(self.cameras, rates, strict=True)
@@ -482,6 +495,7 @@ class Companion:
             self.stats.frames_waited += 1
         used_before = self.boxes.boxes_used(cam.camera_id)
         result: FrameResult | None = self._step(cam, slot.image, slot.capture_mono_us, now_mono_us)
+        result = self._fused(cam, result, now_mono_us)
         cam.last_processed_capture_mono_us = slot.capture_mono_us
         self.boxes.frame_processed(cam.camera_id, slot.waited_for_boxes, used_before)
         offset = self.clock_offset_us()
@@ -519,6 +533,25 @@ class Companion:
             float(self.endpoint.params.values["TCM_OBJ_RADIUS"]),
         )
 
+    def _fused(
+        self, cam: CameraSlots, result: FrameResult | None, now_mono_us: int
+    ) -> FrameResult | None:
+        """A rig's camera result as the rig reports it (:meth:`.RigTracker.fuse`: rig-wide
+        ids, objects another camera measures left out); as it is with one camera."""
+        if self.rig is None or result is None:
+            return result
+        return self.rig.fuse(cam.camera_id, result)
+
+    def _rig_camera_lost(self, cam: CameraSlots) -> None:
+        """A rig forgets what only camera ``cam`` measured (:meth:`.RigTracker.camera_lost`)
+        and keeps in its last objects only those, to be sent once as unknown; what another
+        camera sees too goes on there. Nothing with one camera."""
+        rig = self.rig
+        if rig is None:
+            return
+        rig.camera_lost(cam.camera_id)
+        cam.last_objects = tuple(o for o in cam.last_objects if not rig.has_track(o.track_id))
+
     def replay_frame(
         self,
         camera_id: int,
@@ -540,6 +573,7 @@ class Companion:
             result = self._step(cam, image, capture_mono_us, process_mono_us)
         finally:
             self.clock.force(None)
+        result = self._fused(cam, result, process_mono_us)
         # What the live box feed's later messages are judged against (late or not).
         cam.last_processed_capture_mono_us = capture_mono_us
         if result is not None and override:
@@ -557,6 +591,8 @@ class Companion:
         self.pipeline_config = new
         for cam in self.cameras:
             self._rebuild(cam)
+        if self.rig is not None:  # its tracks bridge the pipelines' warm-up
+            self.rig.pipeline_config = new
         self.endpoint.statustext(d.MAV_SEVERITY_INFO, "TCM: parameters applied", now_mono_us)
 
     def _rebuild(self, cam: CameraSlots) -> None:
@@ -656,6 +692,8 @@ class Companion:
                     else [c for c in self.cameras if c.name == name]
                 )
                 for cam in cams:
+                    if name != BOX_FEED:
+                        self._rig_camera_lost(cam)
                     if not cam.last_objects:
                         continue
                     # Tell the autopilot once that what it last heard is no longer known.

@@ -206,9 +206,10 @@ def _summary_json(path: Path) -> str | None:
 
 
 def _results_csv(path: Path) -> str | None:
-    from .results import RESULTS_HEADER
+    from .results import RESULTS_HEADER, RIG_RESULTS_HEADER
 
-    return text_starting(",".join(RESULTS_HEADER))(path)
+    rig = text_starting(",".join(RIG_RESULTS_HEADER))(path)
+    return rig if rig is None else text_starting(",".join(RESULTS_HEADER))(path)
 
 
 RESULTS_CSV = OutputKind("results CSV", _results_csv)

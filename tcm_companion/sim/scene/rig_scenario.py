@@ -37,13 +37,13 @@ class SimulatedRig:
     def __init__(self, base: SimulatedScenario, cameras: Sequence[tuple[str, CameraModel]]):
         if not cameras:
             raise ValueError("a rig needs at least one camera")
-        self.name = base.name
+        self.name = flight = base.name
         self.description = f"{base.description}, rig of {len(cameras)} camera(s)"
         self.camera_names = [n for n, _ in cameras]
         self.cameras: list[SimulatedScenario] = []
         for cam_name, lens in cameras:
             sim = base if lens is base.camera else base.with_camera(lens)
-            sim.name = f"{base.name}/{cam_name}"
+            sim.name = f"{flight}/{cam_name}"
             sim.telemetry = base.telemetry  # one telemetry (the same samples anyway)
             self.cameras.append(sim)
         self.plan = base.plan

@@ -359,7 +359,7 @@ def load_rig(root: str | Path, check_frames: bool = True) -> RigScenario:
             *_LENS_KEYS.get(str(lens.get("model")), ()),
         }
         unknown = sorted(set(lens) - allowed)
-        if unknown:
+        if unknown and lens.get("model") in _LENS_KEYS:  # else: the model's error first
             raise ScenarioError(f"{where}: unknown key {unknown[0]!r}")
         try:
             camera = camera_from_dict(lens, where=f"{where}: camera")

@@ -1,0 +1,353 @@
+"""The rig form of the scenario format (issue 26): reader, writer, sim export --rig, replay
+and eval of a rig, and the one-camera form unchanged."""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tcm_companion import cli
+from tcm_companion.core.camera import Pinhole
+from tcm_companion.io.results import RESULTS_HEADER, RIG_RESULTS_HEADER, ResultsWriter
+from tcm_companion.io.scenario import (
+    RigScenario,
+    Scenario,
+    ScenarioError,
+    load_any,
+    load_rig,
+    load_scenario,
+)
+from tcm_companion.sim.scene.export import make_scenario
+from tcm_companion.sim.scene.rig_scenario import SimulatedRig, export_rig, make_rig
+
+from .helpers import EXAMPLE_NAMES, example_path
+
+SMALL = (64, 48)
+
+
+@pytest.fixture(scope="module")
+def tiny_rig(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """T90 seen by the front-back rig, 0.4 s at 64x48 (10 frames a camera)."""
+    out = tmp_path_factory.mktemp("rig") / "tiny"
+    export_rig(make_rig("T90", "front-back", duration_s=0.4, resolution=SMALL), out)
+    return out
+
+
+@pytest.fixture()
+def broken(tiny_rig: Path, tmp_path: Path) -> Path:
+    dst = tmp_path / "r"
+    shutil.copytree(tiny_rig, dst)
+    return dst
+
+
+def edit(path: Path, old: str, new: str, count: int = 1) -> None:
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, count))
+
+
+def line_of(path: Path, pattern: str, k: int = 0) -> int:
+    lines = [i + 1 for i, s in enumerate(path.read_text().splitlines()) if re.match(pattern, s)]
+    return lines[k]
+
+
+# -- reader and writer -------------------------------------------------------------------
+def test_round_trip(tiny_rig: Path) -> None:
+    sim = make_rig("T90", "front-back", duration_s=0.4, resolution=SMALL)
+    rig = load_rig(tiny_rig)
+    assert isinstance(rig, RigScenario)
+    assert rig.camera_names == ["front", "rear"] and rig.name == "T90"
+    assert [c.root for c in rig.cameras] == [tiny_rig / "cameras/front", tiny_rig / "cameras/rear"]
+    assert [c.name for c in rig.cameras] == ["T90/front", "T90/rear"]
+    for got, want in zip(rig.cameras, sim.cameras):
+        assert got.camera == want.camera
+        assert np.array_equal(got.frame_times_us, want.frame_times_us)
+        assert got.truth is not None
+        np.testing.assert_allclose(got.truth.obj_ned_m, want.truth.obj_ned_m, atol=1e-6)
+        assert got.telemetry is rig.telemetry  # one telemetry for the rig
+        _, t_us, img = next(got.iter_frames())
+        assert img.shape == (SMALL[1], SMALL[0], 3) and t_us == got.frame_times_us[0]
+    assert len(rig.telemetry) == len(sim.telemetry)
+    assert rig.cameras[1].camera.mount_rpy_deg == (0.0, 0.0, 180.0)
+    assert rig.has_truth and rig.n_frames == 20
+    assert isinstance(load_any(tiny_rig), RigScenario)
+
+
+def test_load_scenario_points_a_rig_to_load_rig(tiny_rig: Path) -> None:
+    with pytest.raises(ScenarioError, match=r"scenario\.toml: this scenario is a camera rig"):
+        load_scenario(tiny_rig)
+
+
+@pytest.mark.parametrize("name", EXAMPLE_NAMES)
+def test_independent_examples_read_as_before(name: str) -> None:
+    path = example_path(name)
+    one, any_ = load_scenario(path), load_any(path)
+    assert isinstance(any_, Scenario)
+    assert any_.camera == one.camera and any_.name == one.name
+    assert np.array_equal(any_.frame_times_us, one.frame_times_us)
+    assert any_.warnings == one.warnings == []
+    assert one.truth is not None and any_.truth is not None
+    assert np.array_equal(any_.truth.obj_ned_m, one.truth.obj_ned_m)
+    with pytest.raises(ScenarioError, match="no \\[\\[cameras\\]\\] tables"):
+        load_rig(path)
+
+
+def test_one_camera_results_header_unchanged() -> None:
+    import io
+
+    fh = io.StringIO()
+    ResultsWriter(fh)
+    assert fh.getvalue() == ",".join(RESULTS_HEADER) + "\n"
+    fh = io.StringIO()
+    w = ResultsWriter(fh, ["front", "rear"])
+    assert fh.getvalue() == (
+        "frame,t_us,camera,track_id,azimuth_deg,elevation_deg,angular_radius_deg,state,"
+        "disparity,ttc_s\n"
+    )
+    assert RIG_RESULTS_HEADER[2] == "camera"
+    from tcm_companion.core.pipeline import FrameResult
+
+    with pytest.raises(ValueError, match="camera_id"):
+        w.write(FrameResult(0, 0, (), True, None, {}))
+
+
+# -- what the reader refuses, with file and line ---------------------------------------------
+def test_both_camera_and_cameras(broken: Path) -> None:
+    toml = broken / "scenario.toml"
+    edit(toml, 'description = "', '[camera]\nmodel = "pinhole"\n\n[x]\ndescription = "')
+    # [camera] must come after the top-level keys: put it at the end instead
+    toml.write_text(
+        toml.read_text().replace('[camera]\nmodel = "pinhole"\n\n[x]\n', "")
+        + '\n[camera]\nmodel = "pinhole"\n'
+    )
+    line = line_of(toml, r"\[camera\]")
+    for load in (load_rig, load_scenario, load_any):
+        with pytest.raises(ScenarioError, match=rf"scenario\.toml: line {line}: both \[camera\]"):
+            load(broken)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "k", "problem"),
+    [
+        ('name = "rear"\n', "", 1, r"name must be letters, digits, '_' or '-', got None"),
+        ('name = "rear"', 'name = "rear cam"', 1, r"name must be letters.*got 'rear cam'"),
+        ('name = "rear"', 'name = "front"', 1, r"\(front\): name 'front' is already camera 1's"),
+        ('dir = "cameras/rear"\n', "", 1, r"\(rear\): dir must be a relative path, got None"),
+        ('dir = "cameras/rear"', 'dir = "/tmp"', 1, r"\(rear\): dir '/tmp' is not inside"),
+        ('dir = "cameras/rear"', 'dir = "../.."', 1, r"\(rear\): dir '\.\./\.\.' is not inside"),
+        ('dir = "cameras/rear"', 'dir = "cameras/side"', 1, r"\(rear\): dir .* not a directory"),
+        ('dir = "cameras/rear"', 'dir = "cameras/front"', 1, r"is already camera 1's"),
+        ('dir = "cameras/rear"', 'dir = "cameras/rear"\nfxx = 3.0', 1, r"unknown key 'fxx'"),
+        (
+            'dir = "cameras/rear"',
+            'dir = "cameras/rear"\nframes_dir = "frames"\nvideo = "v.mkv"',
+            1,
+            r"give at most one of frames_dir or video",
+        ),
+        ("width = 64", "width = 4", 0, r"\(front\): camera\.width = 4 is out of range"),
+        ('model = "pinhole"', 'model = "orthographic"', 0, r"\(front\): camera\.model must be"),
+    ],
+)
+def test_cameras_table_rejections(broken: Path, old: str, new: str, k: int, problem: str) -> None:
+    toml = broken / "scenario.toml"
+    line = line_of(toml, r"\[\[cameras\]\]", k)
+    text = toml.read_text()
+    at = [m.start() for m in re.finditer(r"\[\[cameras\]\]", text)][k]
+    assert old in text[at:]
+    toml.write_text(text[:at] + text[at:].replace(old, new, 1))
+    with pytest.raises(
+        ScenarioError, match=rf"scenario\.toml: line {line}: \[\[cameras\]\] {k + 1}.*{problem}"
+    ):
+        load_rig(broken)
+
+
+def test_top_level_frames_keys_and_files(broken: Path) -> None:
+    toml = broken / "scenario.toml"
+    edit(toml, 'description = "', 'frames_dir = "frames"\ndescription = "')
+    with pytest.raises(
+        ScenarioError, match=r"scenario\.toml: line 3: frames_dir is a \[\[cameras\]\] key"
+    ):
+        load_rig(broken)
+    edit(toml, 'frames_dir = "frames"\n', "")
+    shutil.copy(broken / "cameras/front/frames.csv", broken / "frames.csv")
+    with pytest.raises(ScenarioError, match=r"/frames\.csv: a rig keeps frames\.csv in each"):
+        load_rig(broken)
+
+
+def test_no_cameras_and_not_tables(broken: Path) -> None:
+    toml = broken / "scenario.toml"
+    head = toml.read_text().split("[[cameras]]")[0]
+    toml.write_text(head + "cameras = []\n")
+    with pytest.raises(ScenarioError, match=r"a rig needs at least one camera"):
+        load_rig(broken)
+    toml.write_text(head + "cameras = [1, 2]\n")
+    with pytest.raises(ScenarioError, match=r"cameras must be an array of tables"):
+        load_rig(broken)
+
+
+def test_truth_all_or_none(broken: Path) -> None:
+    (broken / "cameras/rear/truth.csv").unlink()
+    with pytest.raises(
+        ScenarioError, match=r"cameras/rear/truth\.csv: missing \(cameras rear have no truth"
+    ):
+        load_rig(broken)
+
+
+def test_per_camera_files_named_with_their_camera(broken: Path) -> None:
+    frames = broken / "cameras/rear/frames.csv"
+    lines = frames.read_text().splitlines()
+    lines[3] = lines[3].split(",")[0] + "," + lines[2].split(",")[1]
+    frames.write_text("\n".join(lines) + "\n")
+    with pytest.raises(
+        ScenarioError, match=r"cameras/rear/frames\.csv: line 4: t_us .* does not increase"
+    ):
+        load_rig(broken)
+
+
+def test_per_camera_missing_frame_file(broken: Path) -> None:
+    (broken / "cameras/front/frames/000005.png").unlink()
+    with pytest.raises(
+        ScenarioError,
+        match=r"cameras/front/frames\.csv: line 7: frame 5 has no file .*cameras/front/frames/000005\.png",
+    ):
+        load_rig(broken)
+
+
+def test_per_camera_truth_frame_out_of_range(broken: Path) -> None:
+    truth = broken / "cameras/front/truth.csv"
+    edit(truth, "\n9,", "\n10,")
+    line = next(i + 1 for i, s in enumerate(truth.read_text().splitlines()) if s.startswith("10,"))
+    with pytest.raises(
+        ScenarioError, match=rf"cameras/front/truth\.csv: line {line}: frame 10 is not in"
+    ):
+        load_rig(broken)
+
+
+@pytest.mark.slow  # 0.5 s: the CLI's imports
+def test_cli_refuses_a_malformed_rig(
+    broken: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    edit(broken / "scenario.toml", 'name = "rear"', 'name = "front"')
+    rc = cli.main(["replay", str(broken), "--results", str(tmp_path / "r.csv"), "-q"])
+    assert rc == 2
+    assert "is already camera 1's" in capsys.readouterr().err
+    assert not (tmp_path / "r.csv").exists()
+
+
+# -- sim export --rig, replay and eval of a rig -----------------------------------------------
+@pytest.mark.slow  # renders and replays a few hundred frames
+def test_sim_export_rig_cli_and_force(tmp_path: Path) -> None:
+    out = tmp_path / "q"
+    argv = ["sim", "export", "T90", str(out), "--rig", "quad", "--duration", "0.3"]
+    argv += ["--resolution", "64x48", "-q"]
+    assert cli.main(argv) == 0
+    rig = load_rig(out)
+    assert rig.camera_names == ["front", "right", "rear", "left"]
+    assert [c.camera.mount_rpy_deg[2] for c in rig.cameras] == [0.0, 90.0, 180.0, -90.0]
+    assert cli.main([*argv, "--force"]) == 0  # a rig this program wrote is replaced
+    (out / "cameras" / "notes.txt").write_text("mine")
+    assert cli.main([*argv, "--force"]) == 2  # ... but not with something else in it
+    assert (out / "cameras" / "notes.txt").exists()
+
+
+def crossing_rig(duration_s: float) -> SimulatedRig:
+    """T90 through two 100° pinholes at yaw 45° ("fwd") and 135° ("aft"): the ball, at
+    58°-118° right of the nose, starts in their 10° overlap (89°) and crosses it again at
+    about 5.3 s."""
+    w, h = 160, 120
+    f = (w / 2) / math.tan(math.radians(50.0))
+    cams = [
+        (n, Pinhole(w, h, (0.0, 0.0, yaw), fx=f, fy=f, cx=w / 2, cy=h / 2))
+        for n, yaw in (("fwd", 45.0), ("aft", 135.0))
+    ]
+    return SimulatedRig(make_scenario("T90", cams[0][1], duration_s=duration_s), cams)
+
+
+@pytest.fixture(scope="module")
+def crossing(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("cross") / "T90-cross"
+    export_rig(crossing_rig(7.0), out, progress=False)
+    return out
+
+
+@pytest.mark.slow  # replays 350 frames
+def test_replay_of_a_rig(crossing: Path, tmp_path: Path) -> None:
+    res = tmp_path / "r.csv"
+    assert cli.main(["replay", str(crossing), "--results", str(res), "-q", "--check"]) == 0
+    rows = list(csv.DictReader(res.open()))
+    assert list(rows[0]) == RIG_RESULTS_HEADER
+    assert {r["camera"] for r in rows} == {"fwd", "aft"}
+    rig = load_rig(crossing)
+    times = {n: c.frame_times_us for n, c in zip(rig.camera_names, rig.cameras)}
+    for r in rows:  # frame and t_us are the measuring camera's
+        assert times[r["camera"]][int(r["frame"])] == int(r["t_us"])
+    t = [int(r["t_us"]) for r in rows]
+    assert t == sorted(t)  # capture-time order across cameras
+    # the ball is reported by both cameras over the flight (before and after the crossing)
+    aft = [int(r["t_us"]) for r in rows if r["camera"] == "aft" and r["state"] != "unknown"]
+    fwd = [int(r["t_us"]) for r in rows if r["camera"] == "fwd" and r["state"] != "unknown"]
+    assert aft and fwd and min(aft) < min(fwd)
+
+
+@pytest.mark.slow  # replays 350 frames
+def test_eval_of_a_rig_per_camera_overall_and_handover(crossing: Path, tmp_path: Path) -> None:
+    from tcm_companion.config import AppConfig
+    from tcm_companion.eval.evaluate import summarize
+    from tcm_companion.eval.rig import evaluate_rig, handover_text
+
+    cfg = AppConfig()
+    ev = evaluate_rig(load_rig(crossing), cfg, with_bsm=False)
+    assert [e.name for e in ev.cameras] == ["T90/fwd", "T90/aft"]
+    assert ev.overall.name == "T90/all"
+    n_all = len(ev.overall.records)
+    assert n_all == sum(len(e.records) for e in ev.cameras)
+    tcm = {
+        e.name: next(s for s in summarize(e.records, cfg.pipeline.classifier) if s.method == "tcm")
+        for e in [*ev.cameras, ev.overall]
+    }
+    assert all(s.accuracy > 0.9 for s in tcm.values())  # T90: the ball moves
+    # "aft" sees the ball from the start; "fwd" only after the crossing (5.3 s of 7), its
+    # young track warming up: with per-camera decisions only, ~30% of its object-frames
+    assert tcm["T90/aft"].coverage > 0.7 and tcm["T90/all"].coverage > 0.5
+    # the ball (object 1) was measured by both cameras: one handover row, whose track ids
+    # are exactly those of its matched records
+    (row,) = ev.handover
+    assert row.object_id == 1 and row.cameras == ("fwd", "aft")
+    assert set(row.track_ids) == {r.track_id for r in ev.overall.records if r.matched}
+    text = "\n".join(handover_text([ev]))
+    assert f"object 1: cameras fwd, aft: {row.n_tracks} track id(s)" in text
+    # object-frames: only those in a camera's view (never the ball behind "fwd")
+    assert all(r.matched or r.object_id == 1 for r in ev.overall.records)
+
+
+@pytest.mark.slow  # replays 350 frames
+@pytest.mark.xfail(
+    reason="one rig-wide track id per object needs RigTracker.fuse's behaviour (wt26-rig);"
+    " its API alone passes the per-camera ids through",
+    strict=False,
+)
+def test_the_crossing_ball_keeps_one_track_id(crossing: Path) -> None:
+    from tcm_companion.config import AppConfig
+    from tcm_companion.eval.rig import evaluate_rig
+
+    ev = evaluate_rig(load_rig(crossing), AppConfig(), with_bsm=False)
+    assert [h.n_tracks for h in ev.handover] == [1]
+
+
+@pytest.mark.slow  # renders and evaluates a 2-second quad flight
+def test_eval_sim_rig_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "ev"
+    argv = ["eval", "--sim", "T90", "--rig", "quad", "--duration", "2", "--no-bsm", "-q"]
+    assert cli.main([*argv, "--out", str(out)]) == 0
+    report = (out / "report.txt").read_text()
+    for name in ("T90/front", "T90/right", "T90/rear", "T90/left", "T90/all"):
+        assert f"\n{name} " in report
+    # on the quad rig T90's ball stays 58°-118° right of the nose: the right camera alone
+    assert "Camera rigs: handover" in report
+    assert "T90: no object was measured by two cameras or more" in report

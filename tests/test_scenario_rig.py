@@ -150,6 +150,12 @@ def test_both_camera_and_cameras(broken: Path) -> None:
             1,
             r"give at most one of frames_dir or video",
         ),
+        (
+            'dir = "cameras/rear"',
+            'dir = "cameras/rear"\nframes_dir = "../../x"',
+            1,
+            r"frames_dir '\.\./\.\./x' is not a path inside",
+        ),
         ("width = 64", "width = 4", 0, r"\(front\): camera\.width = 4 is out of range"),
         ('model = "pinhole"', 'model = "orthographic"', 0, r"\(front\): camera\.model must be"),
     ],

@@ -350,6 +350,15 @@ def load_rig(root: str | Path, check_frames: bool = True) -> RigScenario:
         seen_dirs[cam_dir.resolve()] = k
         if "frames_dir" in table and "video" in table:
             raise ScenarioError(f"{where}: give at most one of frames_dir or video")
+        for key in ("frames_dir", "video"):
+            value = table.get(key)
+            if key in table and (
+                not isinstance(value, str)
+                or not value
+                or Path(value).is_absolute()
+                or not (cam_dir / value).resolve().is_relative_to(real_root)
+            ):
+                raise ScenarioError(f"{where}: {key} {value!r} is not a path inside the scenario")
         lens = {key: v for key, v in table.items() if key not in RIG_CAMERA_KEYS}
         allowed = {
             "model",

@@ -191,7 +191,8 @@ def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
     _refuse_both(toml_path, meta, text)
     if "cameras" in meta:
         raise ScenarioError(
-            f"{toml_path}: this scenario is a camera rig ([[cameras]]); read it with load_rig"
+            f"{toml_path}: this scenario is a camera rig ([[cameras]]), and this reads"
+            " one-camera scenarios ([camera]); replay and eval read rigs (load_rig)"
         )
     name, description = _name_and_description(root, toml_path, meta)
     cam_table = meta.get("camera")

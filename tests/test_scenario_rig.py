@@ -368,3 +368,46 @@ def test_eval_sim_rig_report(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     # on the quad rig T90's ball stays 58°-118° right of the nose: the right camera alone
     assert "Camera rigs: handover" in report
     assert "T90: no object was measured by two cameras or more" in report
+
+
+def test_unsynchronised_cameras_replay_in_capture_time_order(tiny_rig: Path) -> None:
+    """Cameras with their own frame times (rear 13 ms after front, at another rate) are
+    processed in capture-time order across the rig, each frame with its own index."""
+    from tcm_companion.config import AppConfig
+    from tcm_companion.replay.rig import RigReplay
+
+    rig = load_rig(tiny_rig)
+    rear = rig.cameras[1]
+    rear.frame_times_us = rear.frame_times_us[::2] + 13_000  # a camera at half the rate
+    rear.truth = None
+    rear.iter_frames = lambda: (  # type: ignore[method-assign]
+        (i, int(t), rear.read_frame(2 * i)) for i, t in enumerate(rear.frame_times_us)
+    )
+    replay = RigReplay(rig.cameras, rig.telemetry, AppConfig())
+    got = [(f.camera_id, f.raw.frame_index, f.raw.t_us) for f in replay.frames()]
+    assert len(got) == 10 + 5
+    assert [t for _, _, t in got] == sorted(t for _, _, t in got)
+    assert [i for k, i, _ in got if k == 1] == list(range(5))
+    assert [t for k, _, t in got if k == 1] == [int(t) for t in rear.frame_times_us]
+    assert replay.tracker is not None  # two cameras: the rig tracker
+
+
+def test_a_camera_as_a_video(broken: Path) -> None:
+    import cv2
+
+    rear = broken / "cameras/rear"
+    writer = cv2.VideoWriter(str(rear / "rear.avi"), cv2.VideoWriter.fourcc(*"MJPG"), 25, SMALL)
+    for p in sorted((rear / "frames").iterdir()):
+        img = cv2.imread(str(p))
+        assert img is not None
+        writer.write(img)
+    writer.release()
+    shutil.rmtree(rear / "frames")
+    edit(
+        broken / "scenario.toml", 'dir = "cameras/rear"', 'dir = "cameras/rear"\nvideo = "rear.avi"'
+    )
+    rig = load_rig(broken)
+    cam = rig.cameras[1]
+    assert cam.video == rear / "rear.avi" and cam.frames_dir is None
+    frames = list(cam.iter_frames())
+    assert len(frames) == 10 and frames[0][2].shape == (SMALL[1], SMALL[0], 3)

@@ -141,6 +141,7 @@ def test_both_camera_and_cameras(broken: Path) -> None:
         ('dir = "cameras/rear"\n', "", 1, r"\(rear\): dir must be a relative path, got None"),
         ('dir = "cameras/rear"', 'dir = "/tmp"', 1, r"\(rear\): dir '/tmp' is not inside"),
         ('dir = "cameras/rear"', 'dir = "../.."', 1, r"\(rear\): dir '\.\./\.\.' is not inside"),
+        ('dir = "cameras/rear"', 'dir = "."', 1, r"\(rear\): dir '\.' is the scenario's top"),
         ('dir = "cameras/rear"', 'dir = "cameras/side"', 1, r"\(rear\): dir .* not a directory"),
         ('dir = "cameras/rear"', 'dir = "cameras/front"', 1, r"is already camera 1's"),
         ('dir = "cameras/rear"', 'dir = "cameras/rear"\nfxx = 3.0', 1, r"unknown key 'fxx'"),

@@ -341,6 +341,10 @@ def load_rig(root: str | Path, check_frames: bool = True) -> RigScenario:
         cam_dir = root / cam_dir_text
         if Path(cam_dir_text).is_absolute() or not cam_dir.resolve().is_relative_to(real_root):
             raise ScenarioError(f"{where}: dir {cam_dir_text!r} is not inside the scenario")
+        if cam_dir.resolve() == real_root:
+            raise ScenarioError(
+                f"{where}: dir {cam_dir_text!r} is the scenario's top: each camera has its own"
+            )
         if not cam_dir.is_dir():
             raise ScenarioError(f"{where}: dir {cam_dir} is not a directory")
         if cam_dir.resolve() in seen_dirs:

@@ -277,6 +277,8 @@ def run_evaluation(
         sep = separation_by_interval(evals)
         parts += ["", "Separation by frame interval (paper Fig. 4):"]
         parts += [f"  k={k:>2}  separation {v:+.3f}" for k, v in sep.items()]
+        if rig_evals:
+            parts += ["  (camera rigs are left out of this study: one camera's pipeline each)"]
         if out_dir is not None:
             plot_separation(sep, out_dir / "separation.png")
     if warnings:

@@ -353,10 +353,14 @@ class RigTracker:
             ok = (ang <= gate) & size_ok & labels
             size = np.where(np.isfinite(size), size, 0.0)
             cost = np.where(ok, ang / gate + 0.5 * np.minimum(size, 2.0), 1e6)
-            from scipy.optimize import linear_sum_assignment
+            if len(cands) == 1 and len(objs) == 1:
+                pairs = [(0, 0)]  # the common case, without the solver (or its import)
+            else:
+                from scipy.optimize import linear_sum_assignment  # ~0.5 s to import
 
-            rows, cols = linear_sum_assignment(cost)
-            for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+                rows, cols = linear_sum_assignment(cost)
+                pairs = list(zip(rows.tolist(), cols.tolist(), strict=True))
+            for r, c in pairs:
                 if not ok[r, c]:
                     continue
                 rt, obj = cands[r], objs[c]

@@ -4,6 +4,12 @@ Every check that fails raises :class:`ScenarioError` with the file, the line (wh
 file has lines) and the problem, so a hand-built scenario can be fixed from the message
 alone. Frames are read lazily, one at a time, in order.
 
+A camera rig (``[[cameras]]``, docs/scenario-format.md "Camera rigs") is read by
+:func:`load_rig` into a :class:`RigScenario`: one :class:`Scenario` per camera (its own
+directory, frame times, truth and detections) sharing the rig's telemetry;
+:func:`load_any` reads either form, and :func:`load_scenario` keeps reading one camera
+only, exactly as before.
+
 Damaged data is kept where intact and reported, not refused: a ``.tlog`` cut short, with
 junk appended or with a corrupt stretch inside is read around the damage
 (:mod:`.tlog`), and what was skipped, where, and how many records were kept is one of

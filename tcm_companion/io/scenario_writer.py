@@ -11,6 +11,11 @@ previous, longer scenario left there (frames past the last one, a ``detections.c
 that no longer applies). Each producer calls what it has, in its own order; the bytes
 of every file are the same as before the two shared this module.
 
+A rig (``[[cameras]]``) is written by a :class:`RigWriter`: ``scenario.toml``
+(:func:`rig_scenario_toml`) and ``telemetry.tlog`` at the top, and one
+:class:`ScenarioWriter` per camera in ``cameras/NAME`` for its frames, ``frames.csv``,
+``truth.csv`` and ``detections.csv``.
+
 ``scenario.toml`` keeps the two layouts its producers have always written (the same
 keys and values, read alike): the simulator writes each array on one line
 (``layout="inline"``), the log converter writes it with ``tomli_w``, one item a line

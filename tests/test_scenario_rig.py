@@ -412,3 +412,34 @@ def test_a_camera_as_a_video(broken: Path) -> None:
     assert cam.video == rear / "rear.avi" and cam.frames_dir is None
     frames = list(cam.iter_frames())
     assert len(frames) == 10 and frames[0][2].shape == (SMALL[1], SMALL[0], 3)
+
+
+def test_a_rig_through_a_flight_log_and_back(tiny_rig: Path, tmp_path: Path) -> None:
+    """import writes every camera of a rig to the log (camera{k}, its names in the
+    metadata), export of a log of two cameras writes the rig back: the same cameras,
+    times and (PNG) frames; --camera-id N exports that camera alone."""
+    from tcm_companion.logtools.convert import (
+        LogConversionError,
+        log_to_scenario,
+        scenario_to_log,
+    )
+
+    log = tmp_path / "rig.mcap"
+    summary = scenario_to_log(tiny_rig, log)
+    assert summary.frames == 20
+    back = log_to_scenario(log, tmp_path / "back", camera_id=None)
+    assert back.cameras == ["front", "rear"] and back.frames == 20
+    want, got = load_rig(tiny_rig), load_rig(tmp_path / "back")
+    assert got.camera_names == want.camera_names
+    assert len(got.telemetry) == len(want.telemetry)
+    for a, b in zip(want.cameras, got.cameras):
+        assert a.camera == b.camera
+        assert np.array_equal(a.frame_times_us, b.frame_times_us)
+        for (_, _, ia), (_, _, ib) in zip(a.iter_frames(), b.iter_frames()):
+            assert np.array_equal(ia, ib)
+    one = log_to_scenario(log, tmp_path / "one", camera_id=1)
+    assert one.cameras == [] and one.frames == 10
+    rear = load_scenario(tmp_path / "one")
+    assert np.array_equal(rear.frame_times_us, want.cameras[1].frame_times_us)
+    with pytest.raises(LogConversionError, match="a camera rig is imported without --results"):
+        scenario_to_log(tiny_rig, tmp_path / "r.mcap", results=True)

@@ -285,9 +285,11 @@ class RigScenario:
 def is_rig(root: str | Path) -> bool:
     """Whether scenario directory ``root``'s ``scenario.toml`` has ``[[cameras]]`` (a
     missing or unreadable one: False, and the reader says what is wrong)."""
+    if not Path(root).is_dir():
+        return False
     try:
         return "cameras" in _read_toml(Path(root) / "scenario.toml")
-    except ScenarioError:
+    except (ScenarioError, OSError):
         return False
 
 

@@ -148,6 +148,13 @@ class RigWriter:
         """``telemetry.tlog`` (the whole rig's) from a ``.tlog``'s bytes."""
         (self.root / "telemetry.tlog").write_bytes(data)
 
+    def write_telemetry_records(self, records: Iterable[tuple[int, bytes]]) -> None:
+        """``telemetry.tlog`` from ``(receive time µs, packed MAVLink frame)`` pairs."""
+        with open(self.root / "telemetry.tlog", "wb") as fh:
+            writer = TlogWriter(fh)
+            for recv_us, frame in records:
+                writer.write(recv_us, frame)
+
     def camera(self, camera_name: str) -> ScenarioWriter:
         """The writer of camera ``camera_name``'s frames, ``frames.csv``, ``truth.csv``
         and ``detections.csv`` (in ``cameras/NAME``)."""

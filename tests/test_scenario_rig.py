@@ -253,6 +253,8 @@ def test_sim_export_rig_cli_and_force(tmp_path: Path) -> None:
     out = tmp_path / "q"
     argv = ["sim", "export", "T90", str(out), "--rig", "quad", "--duration", "0.3"]
     argv += ["--resolution", "64x48", "-q"]
+    assert cli.main([*argv, "--camera", "pinhole"]) == 2  # a rig or a camera, not both
+    assert not out.exists()
     assert cli.main(argv) == 0
     rig = load_rig(out)
     assert rig.camera_names == ["front", "right", "rear", "left"]
@@ -361,7 +363,10 @@ def test_replay_of_the_quad_rig_t90(tmp_path: Path) -> None:
 @pytest.mark.slow  # renders and evaluates a 2-second quad flight
 def test_eval_sim_rig_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "ev"
+    assert cli.main(["eval", "--rig", "quad", "--out", str(out)]) == 2  # --rig needs --sim
+    assert "argument --rig: it needs --sim" in capsys.readouterr().err
     argv = ["eval", "--sim", "T90", "--rig", "quad", "--duration", "2", "--no-bsm", "-q"]
+    assert cli.main([*argv, "--camera", "pinhole", "--out", str(out)]) == 2
     assert cli.main([*argv, "--resolutions", "160x120", "--out", str(out)]) == 0
     report = (out / "report.txt").read_text()
     for name in ("T90/front", "T90/right", "T90/rear", "T90/left", "T90/all"):

@@ -54,8 +54,6 @@ def _scenarios(args: argparse.Namespace, config: AppConfig) -> list[Any]:
             require_inputs(cam, config, truth=True)
     rig_name = getattr(args, "rig", None)
     if args.sim and rig_name is not None:
-        if args.camera is not None:
-            raise SystemExit("eval: give --camera or --rig, not both")
         from ..sim.scene.rig_scenario import make_rig
 
         for name in args.sim:
@@ -353,6 +351,10 @@ def _evaluate_rig(
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    if args.rig is not None and (not args.sim or args.camera is not None):
+        why = "give --camera or --rig, not both" if args.sim else "it needs --sim NAME ..."
+        print(f"tcm-companion eval: error: argument --rig: {why}", file=sys.stderr)
+        return 2
     config = config_from_args(args)
     resolutions: list[tuple[int, int] | None] = (
         list(args.resolutions) if args.resolutions else [None]

@@ -26,6 +26,7 @@ from .common import (
     resolution,
     whole_number,
 )
+from .sim import RIG_CHOICES
 
 if TYPE_CHECKING:
     from ..config import AppConfig
@@ -39,13 +40,28 @@ DEFAULT_EVAL_OUT = "out/eval"
 DEFAULT_DEMO_OUT = "out/demo"
 
 
-def _scenarios(args: argparse.Namespace, config: AppConfig) -> list[Any]:
-    from ..io.scenario import load_scenario
+def _is_rig(sc: Any) -> bool:
+    """A camera rig (a rig scenario or a simulated rig): it has ``camera_names``."""
+    return hasattr(sc, "camera_names") and hasattr(sc, "cameras")
 
-    out: list[Any] = [load_scenario(p) for p in args.scenarios]
+
+def _scenarios(args: argparse.Namespace, config: AppConfig) -> list[Any]:
+    from ..io.scenario import load_any
+
+    out: list[Any] = [load_any(p) for p in args.scenarios]
     for sc in out:  # all of them before evaluating any
-        require_inputs(sc, config, truth=True)
-    if args.sim:
+        for cam in sc.cameras if _is_rig(sc) else [sc]:
+            require_inputs(cam, config, truth=True)
+    rig_name = getattr(args, "rig", None)
+    if args.sim and rig_name is not None:
+        from ..sim.scene.rig_scenario import make_rig
+
+        for name in args.sim:
+            rig = make_rig(
+                name, rig_name, duration_s=args.duration, seed=args.seed, shorter_ok=True
+            )
+            out.append(rig)
+    elif args.sim:
         from ..sim import make_scenario
 
         camera = None
@@ -182,9 +198,19 @@ def run_evaluation(
     evals = []
     groups = []
     no_decision: list[str] = []
+    rig_evals: list[Any] = []
     for res in resolutions:
         group_evals = []
         for sc in scenarios:
+            if _is_rig(sc):
+                rev = _evaluate_rig(sc, config, res, with_bsm, progress_bars, warn)
+                rig_evals.append(rev)
+                evals.extend(rev.cameras)
+                why = _no_decision(rev.overall.records, cls)
+                if why is not None:
+                    no_decision.append(f"{rev.overall.name} {_label(res)}: {why}")
+                group_evals.append(rev.overall)
+                continue
             # An unreadable frame is skipped and reported, as replay and plot do (its truth
             # objects count as undecided), not the end of the evaluation.
             base = TolerantFrames(sc) if hasattr(sc, "iter_frames_tolerant") else sc
@@ -233,13 +259,24 @@ def run_evaluation(
         methods_table(groups),
     ]
     parts += [f"  {line}" for line in no_decision]
-    ttc = ttc_table(evals)
+    if rig_evals:
+        from ..eval.rig import handover_text
+
+        parts += [
+            "",
+            "Camera rigs: handover (truth objects measured by two cameras or more, distinct"
+            " track ids each; target 1):",
+            *handover_text(rig_evals),
+        ]
+    ttc = ttc_table([ev for ev in evals if not _is_rig_camera(ev, rig_evals)])
     if ttc.count("\n"):
         parts += ["", "Time to contact (rows where both estimate and truth exist):", ttc]
     if intervals:
         sep = separation_by_interval(evals)
         parts += ["", "Separation by frame interval (paper Fig. 4):"]
         parts += [f"  k={k:>2}  separation {v:+.3f}" for k, v in sep.items()]
+        if rig_evals:
+            parts += ["  (camera rigs are left out of this study: one camera's pipeline each)"]
         if out_dir is not None:
             plot_separation(sep, out_dir / "separation.png")
     if warnings:
@@ -252,7 +289,72 @@ def run_evaluation(
     return "\n".join(parts)
 
 
+def _is_rig_camera(ev: Any, rig_evals: Sequence[Any]) -> bool:
+    """A rig's per-camera evaluation (its overall one is scored in the pooled tables)."""
+    return any(ev is c for r in rig_evals for c in r.cameras)
+
+
+def _rig_at_resolution(rig: Any, res: tuple[int, int] | None) -> Any:
+    """The rig with each camera at ``res`` (re-rendered if simulated, else resized)."""
+    if res is None:
+        return rig
+    import copy
+
+    from ..eval.evaluate import at_resolution
+
+    out = copy.copy(rig)
+    out.cameras = []
+    for cam in rig.cameras:
+        scaled = at_resolution(cam, *res)
+        if scaled is not cam and hasattr(scaled, "plan"):
+            scaled.name = cam.name  # a re-rendered camera is named after its flight
+            scaled.telemetry = rig.telemetry
+        out.cameras.append(scaled)
+    return out
+
+
+def _evaluate_rig(
+    rig: Any,
+    config: AppConfig,
+    res: tuple[int, int] | None,
+    with_bsm: bool,
+    progress_bars: bool,
+    warn: Any,
+) -> Any:
+    """One rig evaluated at one resolution (:func:`tcm_companion.eval.rig.evaluate_rig`):
+    its per-camera and overall evaluations are named ``"<rig>/<camera>"`` and
+    ``"<rig>/all"``; what made them partial is warned about as for one camera."""
+    from ..eval.rig import evaluate_rig
+
+    base = _rig_at_resolution(rig, res)
+    cams = [TolerantFrames(c) if hasattr(c, "iter_frames_tolerant") else c for c in base.cameras]
+    import copy
+
+    tolerant = copy.copy(base)
+    tolerant.cameras = cams
+    n = sum(c.n_frames for c in cams)
+    with progress(n, f"{rig.name} rig {_label(res)}", progress_bars) as bar:
+        rev = evaluate_rig(tolerant, config, with_bsm=with_bsm, on_frame=lambda k, r: bar.update(1))
+    for name, c, missing in zip(rev.camera_names, cams, rev.no_attitude):
+        unreadable = getattr(c, "unreadable", [])
+        if unreadable:
+            warn(
+                f"{rig.name}/{name}: {len(unreadable)} unreadable frame(s) skipped: their"
+                " objects count as undecided"
+            )
+        if missing:
+            warn(
+                f"{rig.name}/{name}: {missing} of {c.n_frames} frames have no attitude (the"
+                " telemetry does not cover them): they are not scored"
+            )
+    return rev
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
+    if args.rig is not None and (not args.sim or args.camera is not None):
+        why = "give --camera or --rig, not both" if args.sim else "it needs --sim NAME ..."
+        print(f"tcm-companion eval: error: argument --rig: {why}", file=sys.stderr)
+        return 2
     config = config_from_args(args)
     resolutions: list[tuple[int, int] | None] = (
         list(args.resolutions) if args.resolutions else [None]
@@ -321,6 +423,13 @@ def add_parsers(sub: Any) -> None:
         choices=CAMERA_PRESETS,
         default=None,
         help="camera for --sim scenarios (default: the paper's panorama)",
+    )
+    p.add_argument(
+        "--rig",
+        choices=RIG_CHOICES,
+        default=None,
+        help="see each --sim flight through this camera rig (quad: four 100° pinholes,"
+        " front-back: two) and score it per camera, overall and for handover",
     )
     p.add_argument(
         "--duration",

@@ -31,7 +31,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         summary = log_to_scenario(args.log, tmp, camera_id=args.camera_id, flight=args.flight)
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    print(f"{args.log} -> {args.scenario}: {summary.frames} frames")
+    rig = f" of a rig ({', '.join(summary.cameras)})" if summary.cameras else ""
+    print(f"{args.log} -> {args.scenario}: {summary.frames} frames{rig}")
     return 0
 
 
@@ -107,9 +108,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument(
         "--camera-id",
         type=whole_number(0),
-        default=0,
+        default=None,
         metavar="N",
-        help="which camera's frames to export (default 0)",
+        help="export only this camera, as a one-camera scenario (default: every camera; a"
+        " log of two cameras or more becomes a rig scenario, [[cameras]])",
     )
     p.add_argument("--flight", metavar="ID", default=None, help=FLIGHT_HELP)
     p.set_defaults(func=cmd_export)

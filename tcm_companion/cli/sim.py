@@ -33,6 +33,46 @@ def _camera_arg(args: argparse.Namespace) -> Any:
     return preset_camera(args.camera, args.resolution, args.name)
 
 
+#: ``sim export --rig`` / ``eval --rig``: the simulator's camera rigs
+#: (``tcm_companion.sim.scene.cameras.RIGS``, named here to keep the parser light).
+RIG_CHOICES = ("panorama", "quad", "front-back")
+
+
+def _cmd_sim_export_rig(args: argparse.Namespace) -> int:
+    """``sim export NAME DIR --rig R``: every camera of the rig, one flight."""
+    from ..io.outputs import SCENARIO_DIR, atomic_path
+    from ..sim.scene.rig_scenario import export_rig, make_rig
+    from ..sim.scene.scenarios import FlightTooLong
+
+    if args.camera is not None:
+        print("tcm-companion sim export: error: give --camera or --rig, not both", file=sys.stderr)
+        return 2
+    try:
+        rig = make_rig(
+            args.name,
+            args.rig,
+            duration_s=args.duration,
+            seed=args.seed,
+            resolution=args.resolution,
+        )
+    except FlightTooLong as exc:
+        print(f"tcm-companion sim export: error: argument --duration: {exc}", file=sys.stderr)
+        return 2
+    with atomic_path(args.dir, kind=SCENARIO_DIR, force=args.force) as tmp:
+        export_rig(
+            rig, tmp, progress=False if args.quiet else None, detections=args.detections or None
+        )
+    cams = ", ".join(
+        f"{n} ({c.camera.model_name} {c.camera.width}x{c.camera.height})"
+        for n, c in zip(rig.camera_names, rig.cameras)
+    )
+    print(
+        f"wrote {rig.name}: rig {args.rig}, {len(rig.cameras)} camera(s) [{cams}],"
+        f" {rig.cameras[0].n_frames} frames each -> {args.dir}"
+    )
+    return 0
+
+
 def cmd_sim_export(args: argparse.Namespace) -> int:
     from ..io.outputs import SCENARIO_DIR, atomic_path, check_output
     from ..sim import make_scenario
@@ -40,6 +80,8 @@ def cmd_sim_export(args: argparse.Namespace) -> int:
     from ..sim.scene.scenarios import FlightTooLong
 
     check_output(args.dir, SCENARIO_DIR, force=args.force)  # before rendering, not after
+    if getattr(args, "rig", None) is not None:
+        return _cmd_sim_export_rig(args)
     camera = _camera_arg(args)
     try:
         sim = make_scenario(args.name, camera=camera, duration_s=args.duration, seed=args.seed)
@@ -174,6 +216,14 @@ def add_parsers(sub: Any) -> None:
         choices=CAMERA_PRESETS,
         default=None,
         help="camera preset (default: the paper's panorama, 360x220)",
+    )
+    e.add_argument(
+        "--rig",
+        choices=RIG_CHOICES,
+        default=None,
+        help="write a camera rig instead: every camera of it sees the same flight"
+        " (quad: four 100° pinholes named front/right/rear/left; front-back: two), in the"
+        " rig form of docs/scenario-format.md; --resolution rescales each camera",
     )
     e.add_argument(
         "--resolution",

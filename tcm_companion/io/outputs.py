@@ -37,7 +37,7 @@ import tomllib
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 PathLike = Path | str
 
@@ -132,6 +132,46 @@ def _scenario_dir(path: Path) -> str | None:
         return "its scenario.toml cannot be read"
     if meta.get("format") != FORMAT:
         return f"its scenario.toml is not {FORMAT}"
+    if isinstance(meta.get("cameras"), list):
+        return _rig_dir(path, meta["cameras"])
+    return _camera_files(path, meta)
+
+
+def _rig_dir(path: Path, cameras: list[Any]) -> str | None:
+    """A rig (``[[cameras]]``): ``scenario.toml``, ``telemetry.tlog`` and the cameras'
+    dirs at the top (each ``NAME`` or ``cameras/NAME``: one level of ``cameras/``), each
+    camera's dir holding only a camera's files."""
+    dirs: dict[str, set[str]] = {}  # top-level entry -> the camera dirs under it
+    for table in cameras:
+        d = table.get("dir") if isinstance(table, dict) else None
+        parts = Path(d).parts if isinstance(d, str) else ()
+        if not parts or len(parts) > 2 or any(p in ("..", ".") for p in parts):
+            return "its cameras' dirs are not ones a writer of scenarios makes"
+        dirs.setdefault(parts[0], set()).add(parts[1] if len(parts) == 2 else "")
+    for entry in path.iterdir():
+        mode = entry.lstat().st_mode
+        if entry.name in ("scenario.toml", "telemetry.tlog"):
+            if not stat.S_ISREG(mode):
+                return f"its {entry.name} is not a regular file"
+            continue
+        if entry.name not in dirs or not stat.S_ISDIR(mode):
+            return f"it holds {entry.name}, which is not a scenario's"
+        subs = dirs[entry.name]
+        if "" in subs:
+            why = _camera_files(entry, {"frames_dir": "frames"})
+        else:
+            why = None
+            for sub in entry.iterdir():
+                if sub.name not in subs or not stat.S_ISDIR(sub.lstat().st_mode):
+                    return f"its {entry.name}/ holds {sub.name}, which is not a camera's"
+                why = why or _camera_files(sub, {"frames_dir": "frames"})
+        if why is not None:
+            return why
+    return None
+
+
+def _camera_files(path: Path, meta: dict[str, Any]) -> str | None:
+    """A one-camera scenario's files (or a rig camera's dir): nothing else."""
     frames = meta.get("frames_dir")
     video = meta.get("video")
     allowed = set(SCENARIO_FILES)
@@ -166,9 +206,10 @@ def _summary_json(path: Path) -> str | None:
 
 
 def _results_csv(path: Path) -> str | None:
-    from .results import RESULTS_HEADER
+    from .results import RESULTS_HEADER, RIG_RESULTS_HEADER
 
-    return text_starting(",".join(RESULTS_HEADER))(path)
+    rig = text_starting(",".join(RIG_RESULTS_HEADER))(path)
+    return rig if rig is None else text_starting(",".join(RESULTS_HEADER))(path)
 
 
 RESULTS_CSV = OutputKind("results CSV", _results_csv)

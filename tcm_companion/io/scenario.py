@@ -4,6 +4,12 @@ Every check that fails raises :class:`ScenarioError` with the file, the line (wh
 file has lines) and the problem, so a hand-built scenario can be fixed from the message
 alone. Frames are read lazily, one at a time, in order.
 
+A camera rig (``[[cameras]]``, docs/scenario-format.md "Camera rigs") is read by
+:func:`load_rig` into a :class:`RigScenario`: one :class:`Scenario` per camera (its own
+directory, frame times, truth and detections) sharing the rig's telemetry;
+:func:`load_any` reads either form, and :func:`load_scenario` keeps reading one camera
+only, exactly as before.
+
 Damaged data is kept where intact and reported, not refused: a ``.tlog`` cut short, with
 junk appended or with a corrupt stretch inside is read around the damage
 (:mod:`.tlog`), and what was skipped, where, and how many records were kept is one of
@@ -15,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 import tomllib
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -25,7 +32,13 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from ..core.camera import CameraModel, CameraModelError, Equirectangular, camera_from_dict
+from ..core.camera import _KEYS as _LENS_KEYS
+from ..core.camera import (
+    CameraModel,
+    CameraModelError,
+    Equirectangular,
+    camera_from_dict,
+)
 from ..core.telemetry import AttitudeSample, PositionSample, TelemetrySample
 from ..mavlink.samples import sample_from_message
 from .tlog import TlogError, TlogStats, read_tlog
@@ -174,22 +187,20 @@ class Scenario:
 
 
 def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
-    """Read and validate a scenario directory.
+    """Read and validate a one-camera scenario directory (``[camera]``).
 
     ``check_frames`` opens the first frame to check its size against the camera model
-    (every frame is checked again when read).
+    (every frame is checked again when read). A rig (``[[cameras]]``) is refused here with
+    a pointer to :func:`load_rig` (or :func:`load_any`, which reads either form).
     """
-    root = Path(root)
-    if not root.is_dir():
-        raise ScenarioError(f"{root}: not a directory")
-    meta = _read_toml(root / "scenario.toml")
-    toml_path = root / "scenario.toml"
-    if meta.get("format") != FORMAT:
-        raise ScenarioError(f"{toml_path}: format must be {FORMAT!r}, got {meta.get('format')!r}")
-    name = meta.get("name", root.name)
-    if not isinstance(name, str):
-        raise ScenarioError(f"{toml_path}: name must be a string")
-    description = meta.get("description", "")
+    root, toml_path, meta, text = _open_scenario(root)
+    _refuse_both(toml_path, meta, text)
+    if "cameras" in meta:
+        raise ScenarioError(
+            f"{toml_path}: this scenario is a camera rig ([[cameras]]), and this reads"
+            " one-camera scenarios ([camera]); replay and eval read rigs (load_rig)"
+        )
+    name, description = _name_and_description(root, toml_path, meta)
     cam_table = meta.get("camera")
     if not isinstance(cam_table, dict):
         raise ScenarioError(f"{toml_path}: missing [camera] table")
@@ -201,71 +212,15 @@ def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
     has_dir, has_video = "frames_dir" in meta, "video" in meta
     if has_dir == has_video:
         raise ScenarioError(f"{toml_path}: give exactly one of frames_dir or video")
-    frames_dir = video = None
-    if has_dir:
-        frames_dir = root / str(meta["frames_dir"])
-        if not frames_dir.is_dir():
-            raise ScenarioError(f"{toml_path}: frames_dir {frames_dir} is not a directory")
-    else:
-        video = root / str(meta["video"])
-        if not video.is_file():
-            raise ScenarioError(f"{toml_path}: video {video} does not exist")
+    frames_dir, video, times = _frame_source(
+        root, meta.get("frames_dir"), meta.get("video"), toml_path, ""
+    )
+    telemetry, stats, warnings = _read_telemetry(root / "telemetry.tlog", int(times[0]))
 
-    times = _read_frames_csv(root / "frames.csv")
-    warnings: list[str] = []
-    if frames_dir is not None:
-        present = {p.name for p in frames_dir.iterdir()}
-        for i in range(len(times)):
-            if f"{i:06d}.png" not in present:
-                raise ScenarioError(
-                    f"{root / 'frames.csv'}: line {i + 2}: frame {i} has no file "
-                    f"{frames_dir / f'{i:06d}.png'}"
-                )
-    else:
-        cap = cv2.VideoCapture(str(video))
-        if not cap.isOpened():
-            raise ScenarioError(f"{video}: OpenCV cannot open this video")
-        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        cap.release()
-        if 0 < count < len(times):
-            raise ScenarioError(
-                f"{root / 'frames.csv'}: lists {len(times)} frames but {video} holds {count}"
-            )
-
-    tlog_path = root / "telemetry.tlog"
-    if not tlog_path.is_file():
-        raise ScenarioError(f"{tlog_path}: missing (telemetry is required)")
-    try:
-        records, stats = read_tlog(tlog_path)
-    except TlogError as exc:
-        raise ScenarioError(str(exc)) from None
-    telemetry, types_seen = _telemetry_from_records(records)
-    if not any(isinstance(s, AttitudeSample) for s in telemetry):
-        raise ScenarioError(f"{tlog_path}: no ATTITUDE or ATTITUDE_QUATERNION from the autopilot")
-    if "HEARTBEAT" not in types_seen:
-        warnings.append(f"{tlog_path}: no HEARTBEAT")
-    if not any(isinstance(s, PositionSample) for s in telemetry):
-        warnings.append(f"{tlog_path}: no LOCAL_POSITION_NED (autopilot egomotion unavailable)")
-    if stats.damaged or stats.time_backwards:
-        # kept what is intact; say what was not, where, and when (from the first frame)
-        warnings.append(f"{tlog_path}: {stats.summary(int(times[0]))}")
-
-    truth_path = root / "truth.csv"
-    truth = _read_truth_csv(truth_path, len(times)) if truth_path.is_file() else None
-
-    from .scenario_extras import read_detections_csv, read_targets
+    from .scenario_extras import read_targets
 
     targets = read_targets(root)
-    det_path = root / "detections.csv"
-    detections = None
-    if det_path.is_file():
-        full_panorama = isinstance(camera, Equirectangular) and math.isclose(
-            camera.azimuth_max_deg - camera.azimuth_min_deg, 360.0
-        )
-        detections = read_detections_csv(
-            det_path, len(times), (camera.width, camera.height), wraps=full_panorama
-        )
-
+    truth, detections = _camera_extras(root, camera, len(times))
     scenario = Scenario(
         root=root,
         name=name,
@@ -284,6 +239,331 @@ def load_scenario(root: str | Path, check_frames: bool = True) -> Scenario:
     if check_frames and frames_dir is not None and len(times):
         scenario.read_frame(0)
     return scenario
+
+
+#: A rig camera's name: what the results CSV's ``camera`` column and file names carry.
+CAMERA_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
+#: The keys of a ``[[cameras]]`` table besides the lens's (``camera_from_dict``'s).
+RIG_CAMERA_KEYS = ("name", "dir", "frames_dir", "video")
+#: Files a rig's top directory must not hold: each camera has its own, in its ``dir``.
+_PER_CAMERA_FILES = ("frames.csv", "truth.csv", "detections.csv")
+
+
+@dataclass
+class RigScenario:
+    """A camera rig on disk (``[[cameras]]``): several cameras on one vehicle, one
+    telemetry. ``cameras[i]`` is camera id ``i`` as a one-camera :class:`Scenario` (its
+    ``root`` the camera's ``dir``, its ``name`` ``"<rig>/<camera>"``, its own frame times,
+    truth and detections; ``telemetry`` the rig's, the same list for every camera)."""
+
+    root: Path
+    name: str
+    description: str
+    camera_names: list[str]
+    cameras: list[Scenario]
+    telemetry: list[TelemetrySample]
+    tlog_stats: TlogStats
+    warnings: list[str] = field(default_factory=list)
+    targets: list[TargetSpec] = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        """Frames of every camera together."""
+        return sum(c.n_frames for c in self.cameras)
+
+    @property
+    def has_truth(self) -> bool:
+        return all(c.truth is not None for c in self.cameras)
+
+    def attitude_samples(self) -> list[AttitudeSample]:
+        return [s for s in self.telemetry if isinstance(s, AttitudeSample)]
+
+    def position_samples(self) -> list[PositionSample]:
+        return [s for s in self.telemetry if isinstance(s, PositionSample)]
+
+
+def is_rig(root: str | Path) -> bool:
+    """Whether scenario directory ``root``'s ``scenario.toml`` has ``[[cameras]]`` (a
+    missing or unreadable one: False, and the reader says what is wrong)."""
+    if not Path(root).is_dir():
+        return False
+    try:
+        return "cameras" in _read_toml(Path(root) / "scenario.toml")
+    except (ScenarioError, OSError):
+        return False
+
+
+def load_any(root: str | Path, check_frames: bool = True) -> Scenario | RigScenario:
+    """A scenario directory of either form: :func:`load_rig` for ``[[cameras]]``, else
+    :func:`load_scenario`."""
+    return load_rig(root, check_frames) if is_rig(root) else load_scenario(root, check_frames)
+
+
+def load_rig(root: str | Path, check_frames: bool = True) -> RigScenario:
+    """Read and validate a rig scenario directory (``[[cameras]]``, docs/scenario-format.md).
+
+    Errors name the file, the line and the problem: for a ``[[cameras]]`` table, the line
+    of its header (``scenario.toml: line 9: [[cameras]] 2 (rear): ...``)."""
+    root, toml_path, meta, text = _open_scenario(root)
+    _refuse_both(toml_path, meta, text)
+    tables = meta.get("cameras")
+    if tables is None:
+        raise ScenarioError(f"{toml_path}: no [[cameras]] tables (a one-camera scenario?)")
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise ScenarioError(f"{toml_path}: cameras must be an array of tables ([[cameras]])")
+    if not tables:
+        raise ScenarioError(f"{toml_path}: [[cameras]]: a rig needs at least one camera")
+    for key in ("frames_dir", "video"):
+        if key in meta:
+            raise ScenarioError(
+                f"{toml_path}: line {_key_line(text, key)}: {key} is a [[cameras]] key in a rig"
+                " (each camera's frames are in its own dir)"
+            )
+    for fname in _PER_CAMERA_FILES:
+        if (root / fname).exists():
+            raise ScenarioError(
+                f"{root / fname}: a rig keeps {fname} in each camera's dir, not at the top"
+            )
+    name, description = _name_and_description(root, toml_path, meta)
+    real_root = root.resolve()
+    seen_names: dict[str, int] = {}
+    seen_dirs: dict[Path, int] = {}
+    parsed: list[tuple[str, Path, CameraModel, Path | None, Path | None, np.ndarray]] = []
+    for k, table in enumerate(tables):
+        line = _header_line(text, "cameras", k, double=True)
+        where = f"{toml_path}: line {line}: [[cameras]] {k + 1}"
+        cam_name = table.get("name")
+        if not isinstance(cam_name, str) or not CAMERA_NAME.match(cam_name):
+            raise ScenarioError(
+                f"{where}: name must be letters, digits, '_' or '-', got {cam_name!r}"
+            )
+        where = f"{where} ({cam_name})"
+        if cam_name in seen_names:
+            raise ScenarioError(
+                f"{where}: name {cam_name!r} is already camera {seen_names[cam_name] + 1}'s"
+            )
+        seen_names[cam_name] = k
+        cam_dir_text = table.get("dir")
+        if not isinstance(cam_dir_text, str) or not cam_dir_text:
+            raise ScenarioError(f"{where}: dir must be a relative path, got {cam_dir_text!r}")
+        cam_dir = root / cam_dir_text
+        if Path(cam_dir_text).is_absolute() or not cam_dir.resolve().is_relative_to(real_root):
+            raise ScenarioError(f"{where}: dir {cam_dir_text!r} is not inside the scenario")
+        if cam_dir.resolve() == real_root:
+            raise ScenarioError(
+                f"{where}: dir {cam_dir_text!r} is the scenario's top: each camera has its own"
+            )
+        if not cam_dir.is_dir():
+            raise ScenarioError(f"{where}: dir {cam_dir} is not a directory")
+        if cam_dir.resolve() in seen_dirs:
+            raise ScenarioError(
+                f"{where}: dir {cam_dir_text!r} is already camera"
+                f" {seen_dirs[cam_dir.resolve()] + 1}'s"
+            )
+        seen_dirs[cam_dir.resolve()] = k
+        if "frames_dir" in table and "video" in table:
+            raise ScenarioError(f"{where}: give at most one of frames_dir or video")
+        for key in ("frames_dir", "video"):
+            value = table.get(key)
+            if key in table and (
+                not isinstance(value, str)
+                or not value
+                or Path(value).is_absolute()
+                or not (cam_dir / value).resolve().is_relative_to(real_root)
+            ):
+                raise ScenarioError(f"{where}: {key} {value!r} is not a path inside the scenario")
+        lens = {key: v for key, v in table.items() if key not in RIG_CAMERA_KEYS}
+        allowed = {
+            "model",
+            "width",
+            "height",
+            "mount_rpy_deg",
+            *_LENS_KEYS.get(str(lens.get("model")), ()),
+        }
+        unknown = sorted(set(lens) - allowed)
+        if unknown and lens.get("model") in _LENS_KEYS:  # else: the model's error first
+            raise ScenarioError(f"{where}: unknown key {unknown[0]!r}")
+        try:
+            camera = camera_from_dict(lens, where=f"{where}: camera")
+        except CameraModelError as exc:
+            raise ScenarioError(str(exc)) from None
+        frames_dir, video, times = _frame_source(
+            cam_dir,
+            None if "video" in table else table.get("frames_dir", "frames"),
+            table.get("video"),
+            toml_path,
+            f"line {line}: [[cameras]] {k + 1} ({cam_name}): ",
+        )
+        parsed.append((cam_name, cam_dir, camera, frames_dir, video, times))
+
+    first_us = min(int(p[5][0]) for p in parsed)
+    telemetry, stats, warnings = _read_telemetry(root / "telemetry.tlog", first_us)
+    from .scenario_extras import read_targets
+
+    targets = read_targets(root)
+    cameras: list[Scenario] = []
+    for cam_name, cam_dir, camera, frames_dir, video, times in parsed:
+        truth, detections = _camera_extras(cam_dir, camera, len(times))
+        sc = Scenario(
+            root=cam_dir,
+            name=f"{name}/{cam_name}",
+            description=str(description),
+            camera=camera,
+            frame_times_us=times,
+            telemetry=telemetry,
+            tlog_stats=stats,
+            truth=truth,
+            frames_dir=frames_dir,
+            video=video,
+            targets=targets,
+            detections=detections,
+        )
+        if check_frames and frames_dir is not None:
+            sc.read_frame(0)
+        cameras.append(sc)
+    truths = [c.truth is not None for c in cameras]
+    if any(truths) and not all(truths):
+        missing = [n for n, t in zip(seen_names, truths) if not t]
+        raise ScenarioError(
+            f"{cameras[truths.index(False)].root / 'truth.csv'}: missing (cameras"
+            f" {', '.join(missing)} have no truth.csv and the others have one: all or none)"
+        )
+    return RigScenario(
+        root=root,
+        name=name,
+        description=str(description),
+        camera_names=list(seen_names),
+        cameras=cameras,
+        telemetry=telemetry,
+        tlog_stats=stats,
+        warnings=warnings,
+        targets=targets,
+    )
+
+
+def _open_scenario(root: str | Path) -> tuple[Path, Path, dict[str, Any], str]:
+    """A scenario directory's root, ``scenario.toml`` path, parsed TOML and its text,
+    the format checked."""
+    root = Path(root)
+    if not root.is_dir():
+        raise ScenarioError(f"{root}: not a directory")
+    toml_path = root / "scenario.toml"
+    meta, text = read_toml_text(toml_path)
+    if meta.get("format") != FORMAT:
+        raise ScenarioError(f"{toml_path}: format must be {FORMAT!r}, got {meta.get('format')!r}")
+    return root, toml_path, meta, text
+
+
+def _refuse_both(toml_path: Path, meta: dict[str, Any], text: str) -> None:
+    if "camera" in meta and "cameras" in meta:
+        raise ScenarioError(
+            f"{toml_path}: line {_header_line(text, 'camera', 0, double=False)}: both [camera]"
+            " and [[cameras]]: a scenario has one camera ([camera]) or a rig ([[cameras]])"
+        )
+
+
+def _name_and_description(root: Path, toml_path: Path, meta: dict[str, Any]) -> tuple[str, str]:
+    name = meta.get("name", root.name)
+    if not isinstance(name, str):
+        raise ScenarioError(f"{toml_path}: name must be a string")
+    return name, str(meta.get("description", ""))
+
+
+def _header_line(text: str, table: str, k: int, *, double: bool) -> int:
+    """The line (1-based) of the ``k``-th ``[[table]]`` (or ``[table]``) header; 0 if
+    not found."""
+    pattern = rf"\s*\[\[\s*{table}\s*\]\]" if double else rf"\s*\[\s*{table}\s*\]"
+    lines = [i + 1 for i, line in enumerate(text.splitlines()) if re.match(pattern, line)]
+    return lines[k] if k < len(lines) else 0
+
+
+def _key_line(text: str, key: str) -> int:
+    """The line (1-based) of the first ``key = ...``; 0 if not found."""
+    for i, line in enumerate(text.splitlines()):
+        if re.match(rf"\s*{re.escape(key)}\s*=", line):
+            return i + 1
+    return 0
+
+
+def _frame_source(
+    base: Path, frames_dir_text: Any, video_text: Any, toml_path: Path, where: str
+) -> tuple[Path | None, Path | None, np.ndarray]:
+    """Frames of one camera in directory ``base``: its frames directory or video (one of
+    the two given), and ``base/frames.csv``'s times, checked against each other."""
+    frames_dir = video = None
+    if frames_dir_text is not None:
+        frames_dir = base / str(frames_dir_text)
+        if not frames_dir.is_dir():
+            raise ScenarioError(f"{toml_path}: {where}frames_dir {frames_dir} is not a directory")
+    else:
+        video = base / str(video_text)
+        if not video.is_file():
+            raise ScenarioError(f"{toml_path}: {where}video {video} does not exist")
+    times = _read_frames_csv(base / "frames.csv")
+    if frames_dir is not None:
+        present = {p.name for p in frames_dir.iterdir()}
+        for i in range(len(times)):
+            if f"{i:06d}.png" not in present:
+                raise ScenarioError(
+                    f"{base / 'frames.csv'}: line {i + 2}: frame {i} has no file "
+                    f"{frames_dir / f'{i:06d}.png'}"
+                )
+    else:
+        assert video is not None
+        cap = cv2.VideoCapture(str(video))
+        if not cap.isOpened():
+            raise ScenarioError(f"{video}: OpenCV cannot open this video")
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        cap.release()
+        if 0 < count < len(times):
+            raise ScenarioError(
+                f"{base / 'frames.csv'}: lists {len(times)} frames but {video} holds {count}"
+            )
+    return frames_dir, video, times
+
+
+def _read_telemetry(
+    tlog_path: Path, first_frame_us: int
+) -> tuple[list[TelemetrySample], TlogStats, list[str]]:
+    """The scenario's telemetry, its reader's stats and the warnings about it."""
+    warnings: list[str] = []
+    if not tlog_path.is_file():
+        raise ScenarioError(f"{tlog_path}: missing (telemetry is required)")
+    try:
+        records, stats = read_tlog(tlog_path)
+    except TlogError as exc:
+        raise ScenarioError(str(exc)) from None
+    telemetry, types_seen = _telemetry_from_records(records)
+    if not any(isinstance(s, AttitudeSample) for s in telemetry):
+        raise ScenarioError(f"{tlog_path}: no ATTITUDE or ATTITUDE_QUATERNION from the autopilot")
+    if "HEARTBEAT" not in types_seen:
+        warnings.append(f"{tlog_path}: no HEARTBEAT")
+    if not any(isinstance(s, PositionSample) for s in telemetry):
+        warnings.append(f"{tlog_path}: no LOCAL_POSITION_NED (autopilot egomotion unavailable)")
+    if stats.damaged or stats.time_backwards:
+        # kept what is intact; say what was not, where, and when (from the first frame)
+        warnings.append(f"{tlog_path}: {stats.summary(first_frame_us)}")
+    return telemetry, stats, warnings
+
+
+def _camera_extras(
+    base: Path, camera: CameraModel, n_frames: int
+) -> tuple[Truth | None, list[Detection] | None]:
+    """One camera's optional ``truth.csv`` and ``detections.csv`` in directory ``base``."""
+    from .scenario_extras import read_detections_csv
+
+    truth_path = base / "truth.csv"
+    truth = _read_truth_csv(truth_path, n_frames) if truth_path.is_file() else None
+    det_path = base / "detections.csv"
+    detections = None
+    if det_path.is_file():
+        full_panorama = isinstance(camera, Equirectangular) and math.isclose(
+            camera.azimuth_max_deg - camera.azimuth_min_deg, 360.0
+        )
+        detections = read_detections_csv(
+            det_path, n_frames, (camera.width, camera.height), wraps=full_panorama
+        )
+    return truth, detections
 
 
 def _telemetry_from_records(records: list[Any]) -> tuple[list[TelemetrySample], set[str]]:

@@ -11,6 +11,11 @@ previous, longer scenario left there (frames past the last one, a ``detections.c
 that no longer applies). Each producer calls what it has, in its own order; the bytes
 of every file are the same as before the two shared this module.
 
+A rig (``[[cameras]]``) is written by a :class:`RigWriter`: ``scenario.toml``
+(:func:`rig_scenario_toml`) and ``telemetry.tlog`` at the top, and one
+:class:`ScenarioWriter` per camera in ``cameras/NAME`` for its frames, ``frames.csv``,
+``truth.csv`` and ``detections.csv``.
+
 ``scenario.toml`` keeps the two layouts its producers have always written (the same
 keys and values, read alike): the simulator writes each array on one line
 (``layout="inline"``), the log converter writes it with ``tomli_w``, one item a line
@@ -22,7 +27,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -35,7 +40,14 @@ from .scenario_extras import Detection, write_detections_csv
 from .tlog import TlogWriter
 from .truth import Truth
 
-__all__ = ["FRAME_NAME", "ScenarioWriter", "TomlLayout", "scenario_toml"]
+__all__ = [
+    "FRAME_NAME",
+    "RigWriter",
+    "ScenarioWriter",
+    "TomlLayout",
+    "rig_scenario_toml",
+    "scenario_toml",
+]
 
 #: A frame file of ``frames/``: ``NNNNNN.png``, six digits, the frame's index.
 FRAME_NAME = re.compile(r"^\d{6}\.png$")
@@ -90,6 +102,63 @@ def scenario_toml(
     lines += ["", "[camera]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in doc["camera"].items()]
     return "\n".join(lines) + "\n" + extra
+
+
+def rig_camera_dir(camera_name: str) -> str:
+    """Where a rig's writer puts camera ``camera_name``'s files: ``cameras/NAME``."""
+    return f"cameras/{camera_name}"
+
+
+def rig_scenario_toml(
+    name: str,
+    description: str,
+    cameras: Sequence[tuple[str, CameraModel]],
+    *,
+    extra: str = "",
+) -> str:
+    """The text of a rig's ``scenario.toml``: the format, ``name``, ``description`` and
+    one ``[[cameras]]`` table per ``(camera name, lens)`` in camera-id order (``name``,
+    ``dir = "cameras/NAME"``, the lens's keys; arrays on one line); ``extra`` appended."""
+    lines = [
+        f"format = {_toml_value(FORMAT)}",
+        f"name = {_toml_value(name)}",
+        f"description = {_toml_value(description)}",
+    ]
+    for cam_name, camera in cameras:
+        lines += ["", "[[cameras]]", f"name = {_toml_value(cam_name)}"]
+        lines.append(f"dir = {_toml_value(rig_camera_dir(cam_name))}")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in camera.to_dict().items()]
+    return "\n".join(lines) + "\n" + extra
+
+
+class RigWriter:
+    """A rig scenario directory being written at ``root``: ``scenario.toml`` and
+    ``telemetry.tlog`` at the top, each camera's files through :meth:`camera` (a
+    :class:`ScenarioWriter` of ``cameras/NAME``)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def write_toml(self, text: str) -> None:
+        """``scenario.toml`` (its text: :func:`rig_scenario_toml`)."""
+        (self.root / "scenario.toml").write_text(text, encoding="utf-8")
+
+    def write_telemetry(self, data: bytes) -> None:
+        """``telemetry.tlog`` (the whole rig's) from a ``.tlog``'s bytes."""
+        (self.root / "telemetry.tlog").write_bytes(data)
+
+    def write_telemetry_records(self, records: Iterable[tuple[int, bytes]]) -> None:
+        """``telemetry.tlog`` from ``(receive time µs, packed MAVLink frame)`` pairs."""
+        with open(self.root / "telemetry.tlog", "wb") as fh:
+            writer = TlogWriter(fh)
+            for recv_us, frame in records:
+                writer.write(recv_us, frame)
+
+    def camera(self, camera_name: str) -> ScenarioWriter:
+        """The writer of camera ``camera_name``'s frames, ``frames.csv``, ``truth.csv``
+        and ``detections.csv`` (in ``cameras/NAME``)."""
+        return ScenarioWriter(self.root / rig_camera_dir(camera_name))
 
 
 class ScenarioWriter:

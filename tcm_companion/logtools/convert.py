@@ -23,6 +23,7 @@ times come back unchanged.
 
 from __future__ import annotations
 
+import heapq
 import json
 import logging
 import shutil
@@ -39,8 +40,8 @@ from ..flightlog import reader, topics
 from ..flightlog.docs import annotation_circles, result_doc
 from ..flightlog.settings import LoggingConfig
 from ..flightlog.writer import FlightLogWriter
-from ..io.scenario import ScenarioError, load_scenario
-from ..io.scenario_writer import ScenarioWriter, scenario_toml
+from ..io.scenario import CAMERA_NAME, RigScenario, Scenario, ScenarioError, load_any
+from ..io.scenario_writer import RigWriter, ScenarioWriter, rig_scenario_toml, scenario_toml
 from ..io.tlog import TlogError, read_tlog
 
 log = logging.getLogger(__name__)
@@ -77,6 +78,7 @@ class ExportSummary:
     frames_skipped: int = 0  # capture time not after the previous frame's
     mavlink_bad: int = 0  # bytes of /mavlink/in that did not frame or failed the CRC
     warnings: list[str] = field(default_factory=list)
+    cameras: list[str] = field(default_factory=list)  # a rig's camera names ([]: one camera)
 
 
 @dataclass
@@ -191,7 +193,7 @@ def _msgid(frame: bytes) -> int:
 def log_to_scenario(
     log_path: str | Path,
     out_dir: str | Path,
-    camera_id: int = 0,
+    camera_id: int | None = 0,
     *,
     name: str | None = None,
     flight: str | None = None,
@@ -205,27 +207,45 @@ def log_to_scenario(
     it lacks the camera model, the camera's images or the autopilot's attitude. A
     directory of several flights exports the one ``flight`` picks (else
     :class:`~tcm_companion.flightlog.reader.FlightSelectionError`, listing them).
+
+    ``camera_id`` None: every camera of the log; a log of two cameras or more (a rig)
+    becomes a rig scenario (``[[cameras]]`` named as the log's ``cameras`` metadata, each
+    camera's frames and ``frames.csv`` in ``cameras/NAME``, one ``telemetry.tlog``).
     """
     log_path = Path(log_path)
     out = Path(out_dir)
     metadata = check_log_path(log_path, flight)
     if out.resolve() == log_path.resolve():
         raise LogConversionError(f"{out}: the scenario directory cannot be the log itself")
-    camera = camera_from_metadata(metadata, camera_id, log_path)
+    if camera_id is None:
+        n = 0
+        while f"camera{n}" in metadata:
+            n += 1
+        ids = list(range(n)) if n else [0]  # none: camera0's error below
+    else:
+        ids = [camera_id]
+    rig = len(ids) >= 2
+    cameras = [camera_from_metadata(metadata, k, log_path) for k in ids]
+    names = _camera_names(metadata, len(ids)) if rig else [f"camera{ids[0]}"]
 
-    image_topic = topics.camera_image(camera_id)
-    writer = ScenarioWriter(out)
+    image_topics = [topics.camera_image(k) for k in ids]
+    rig_writer = RigWriter(out) if rig else None
+    writers = (
+        [rig_writer.camera(n) for n in names] if rig_writer is not None else [ScenarioWriter(out)]
+    )
 
-    capture_mono_us: list[int] = []
+    capture_mono_us: list[list[int]] = [[] for _ in ids]
+    skipped = [0] * len(ids)
     chunks: list[tuple[int, bytes]] = []
     offsets_ns: list[int] = []
-    skipped = 0
     log_report = reader.LogReport()
-    for rec in reader.read_log(log_path, [image_topic, topics.MAVLINK_IN], log_report, flight):
+    for rec in reader.read_log(log_path, [*image_topics, topics.MAVLINK_IN], log_report, flight):
         if rec.topic == topics.MAVLINK_IN:
             chunks.append((rec.publish_time_ns // 1000, bytes(rec.data)))
             offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
             continue
+        c = image_topics.index(rec.topic)
+        image_topic, camera, times = image_topics[c], cameras[c], capture_mono_us[c]
         try:
             _cam, t_us, image = reader.decode_image(rec)
         except Exception as exc:  # name the file and the message at fault
@@ -242,17 +262,18 @@ def log_to_scenario(
         if (w, h) != (camera.width, camera.height):
             raise LogConversionError(
                 f"{log_path}: {image_topic} frame at t={t_us} us is {w}x{h} but metadata "
-                f"camera{camera_id} says {camera.width}x{camera.height}"
+                f"camera{ids[c]} says {camera.width}x{camera.height}"
             )
-        if capture_mono_us and t_us <= capture_mono_us[-1]:
-            skipped += 1  # scenario frame times must strictly increase
+        if times and t_us <= times[-1]:
+            skipped[c] += 1  # scenario frame times must strictly increase
             continue
-        writer.write_frame(len(capture_mono_us), image)
-        capture_mono_us.append(int(t_us))
+        writers[c].write_frame(len(times), image)
+        times.append(int(t_us))
         offsets_ns.append(rec.log_time_ns - rec.publish_time_ns)
 
-    if not capture_mono_us:
-        raise LogConversionError(f"{log_path}: no messages on {image_topic}")
+    for image_topic, times in zip(image_topics, capture_mono_us):
+        if not times:
+            raise LogConversionError(f"{log_path}: no messages on {image_topic}")
     if not chunks:
         raise LogConversionError(
             f"{log_path}: no messages on {topics.MAVLINK_IN} (a scenario needs the autopilot "
@@ -273,28 +294,42 @@ def log_to_scenario(
             "(the scenario format requires the autopilot's attitude)"
         )
 
-    writer.write_telemetry_records((t_mono + offset_us, frame) for t_mono, frame in frames_out)
-    writer.write_frames_csv(t_mono + offset_us for t_mono in capture_mono_us)
-    writer.remove_stale_frames(len(capture_mono_us))
-    description = f"converted from flight log {log_path.name} (camera{camera_id})"
+    records = ((t_mono + offset_us, frame) for t_mono, frame in frames_out)
+    (rig_writer or writers[0]).write_telemetry_records(records)
+    for writer, times in zip(writers, capture_mono_us):
+        writer.write_frames_csv(t_mono + offset_us for t_mono in times)
+        writer.remove_stale_frames(len(times))
+    if rig_writer is not None:
+        description = (
+            f"converted from flight log {log_path.name} (rig of {len(ids)} cameras:"
+            f" {', '.join(names)})"
+        )
+    else:
+        description = f"converted from flight log {log_path.name} (camera{ids[0]})"
     if metadata.get("description"):
         description += f": {metadata['description']}"
-    toml = scenario_toml(name or log_path.stem, description, camera, layout="tomli_w")
-    writer.write_toml(toml)
+    if rig_writer is not None:
+        toml = rig_scenario_toml(name or log_path.stem, description, list(zip(names, cameras)))
+        rig_writer.write_toml(toml)
+    else:
+        toml = scenario_toml(name or log_path.stem, description, cameras[0], layout="tomli_w")
+        writers[0].write_toml(toml)
 
     summary = ExportSummary(
         scenario_dir=out,
-        frames=len(capture_mono_us),
+        frames=sum(len(t) for t in capture_mono_us),
         telemetry_records=len(frames_out),
         wall_minus_mono_us=offset_us,
-        frames_skipped=skipped,
+        frames_skipped=sum(skipped),
         mavlink_bad=bad,
+        cameras=names if rig else [],
     )
-    if skipped:
-        summary.warnings.append(
-            f"{log_path}: {skipped} frames on {image_topic} skipped (capture time not after "
-            "the previous frame's)"
-        )
+    for image_topic, n_skipped in zip(image_topics, skipped):
+        if n_skipped:
+            summary.warnings.append(
+                f"{log_path}: {n_skipped} frames on {image_topic} skipped (capture time not"
+                " after the previous frame's)"
+            )
     if bad:
         summary.warnings.append(
             f"{log_path}: {bad} bytes on {topics.MAVLINK_IN} were not valid MAVLink frames "
@@ -306,6 +341,18 @@ def log_to_scenario(
     for w in summary.warnings:
         log.warning("%s", w)
     return summary
+
+
+def _camera_names(metadata: dict[str, str], n: int) -> list[str]:
+    """A rig log's camera names (its ``cameras`` metadata, as the daemon's config names
+    them), usable as a rig scenario's (``[A-Za-z0-9_-]+``, unique), else ``camera{i}``."""
+    try:
+        names = [str(x) for x in json.loads(metadata.get("cameras", "[]"))]
+    except ValueError:
+        names = []
+    if len(names) != n or len(set(names)) != n or not all(CAMERA_NAME.match(x) for x in names):
+        names = [f"camera{i}" for i in range(n)]
+    return names
 
 
 # --------------------------------------------------------------------------------------
@@ -356,7 +403,34 @@ def scenario_to_log(
         raise ValueError(f"image_format must be 'png' or 'jpeg', got {image_format!r}")
     if log_path.is_dir():
         raise LogConversionError(f"{log_path}: is a directory; give the .mcap file to write")
-    scenario = load_scenario(scenario_dir)  # ScenarioError names file and line
+    loaded = load_any(scenario_dir)  # ScenarioError names file and line
+    frames: Iterator[tuple[int, int, int, Any]]  # (capture time, camera id, frame, image)
+    if isinstance(loaded, RigScenario):
+        if results:
+            raise LogConversionError(
+                f"{scenario_dir}: a camera rig is imported without --results (its results"
+                " come from every camera through the rig tracker: replay DIR --results FILE)"
+            )
+        scenario_name, description = loaded.name, loaded.description
+        n_frames = loaded.n_frames
+        camera_meta = {
+            f"camera{k}": json.dumps(c.camera.to_dict()) for k, c in enumerate(loaded.cameras)
+        }
+        camera_meta["cameras"] = json.dumps(loaded.camera_names)
+
+        def tagged(k: int, cam: Scenario) -> Iterator[tuple[int, int, int, Any]]:
+            for i, t, img in cam.iter_frames():
+                yield t, k, i, img
+
+        frames = heapq.merge(
+            *(tagged(k, c) for k, c in enumerate(loaded.cameras)), key=lambda x: x[:2]
+        )
+    else:
+        scenario = loaded
+        scenario_name, description = scenario.name, scenario.description
+        n_frames = scenario.n_frames
+        camera_meta = {"camera0": json.dumps(scenario.camera.to_dict())}
+        frames = ((t, 0, i, img) for i, t, img in scenario.iter_frames())
     tlog_path = scenario_dir / "telemetry.tlog"
     try:
         records, _stats = read_tlog(tlog_path)
@@ -409,22 +483,22 @@ def scenario_to_log(
         writer = FlightLogWriter(lcfg, tmp, wall_minus_mono_ns=0)
         writer.start(
             {
-                "camera0": json.dumps(scenario.camera.to_dict()),
+                **camera_meta,
                 "source": f"tcm-scenario {scenario_dir}",
-                "scenario_name": scenario.name,
-                "description": scenario.description,
+                "scenario_name": scenario_name,
+                "description": description,
                 **recorded,
             }
         )
         try:
             j = 0  # next MAVLink record
             k = 0  # next telemetry sample for the pipeline
-            for i, t_us, image in scenario.iter_frames():
+            for t_us, cam_k, i, image in frames:
                 while j < len(mavlink) and mavlink[j][0] <= t_us:
                     t_m, frame = mavlink[j]
                     _retry("a MAVLink message", writer.log_mavlink, "in", t_m, frame)
                     j += 1
-                _retry(f"frame {i}", writer.log_frame, 0, t_us, image)
+                _retry(f"frame {i}", writer.log_frame, cam_k, t_us, image)
                 if pipeline is not None:
                     t_done = t_us + wait_us  # processed with what had arrived by then
                     while j < len(mavlink) and mavlink[j][0] <= t_done:
@@ -450,10 +524,10 @@ def scenario_to_log(
             writer.stop(timeout_s=60.0)
         st = writer.stats
         want_messages = len(mavlink) + 2 * n_results
-        if st.frames_logged != scenario.n_frames or st.messages_logged != want_messages:
+        if st.frames_logged != n_frames or st.messages_logged != want_messages:
             raise LogConversionError(
                 f"{log_path}: the flight log writer logged {st.frames_logged}/"
-                f"{scenario.n_frames} frames and {st.messages_logged}/{want_messages} "
+                f"{n_frames} frames and {st.messages_logged}/{want_messages} "
                 f"messages (state {st.state}, {st.write_errors} write errors, "
                 f"{st.encode_errors} encode errors)"
             )
@@ -466,7 +540,7 @@ def scenario_to_log(
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return ImportSummary(
-        log_path=log_path, frames=scenario.n_frames, mavlink_records=len(mavlink), results=n_results
+        log_path=log_path, frames=n_frames, mavlink_records=len(mavlink), results=n_results
     )
 
 

@@ -72,6 +72,9 @@ def write_summary_json(
         "objects_sent": summary.stats.objects_sent,
         "box_feed": getattr(summary, "box_feed", {}),
         "link": getattr(summary, "link", {}),
+        "cameras": getattr(summary, "cameras", {}),
+        "workers": getattr(summary, "workers", {}),
+        "dropped_at_stop": getattr(summary, "dropped_at_stop", 0),
         "stages_ms": {
             k: {
                 "p50": float(np.percentile(v, 50)) if v else None,

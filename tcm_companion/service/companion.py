@@ -262,7 +262,7 @@ class Companion:
         ]
         keep = keep[-(MAX_FRAMES_WAITING_FOR_BOXES - 1) :]
         for _ in range(len(cam.pending) - len(keep)):
-            self._drop(now_mono_us)
+            self._drop(now_mono_us, cam)
         # A frame the attitude does not cover yet waits (bounded) for the next sample.
         waits = self.frame_deadline_us(camera_id, capture_mono_us) is not None
         slot = FrameSlot(image, int(capture_mono_us), int(now_mono_us), waits)
@@ -418,12 +418,12 @@ class Companion:
         n = 0
         for cam in self.cameras:
             for _ in cam.pending:
-                self._drop(now_mono_us)
+                self._drop(now_mono_us, cam)
                 n += 1
             cam.pending = []
             if cam.in_flight is not None:  # its worker's result will not be waited for
                 cam.in_flight = None
-                self._drop(now_mono_us)
+                self._drop(now_mono_us, cam)
                 n += 1
         return n
 
@@ -447,8 +447,9 @@ class Companion:
         boxes = self.boxes.deadline_us(cam.camera_id, slot.capture_mono_us)
         return due if boxes is None else max(due, boxes)
 
-    def _drop(self, now_mono_us: int) -> None:
+    def _drop(self, now_mono_us: int, cam: CameraSlots) -> None:
         self.stats.frames_dropped += 1
+        cam.frames_dropped += 1
         self._last_drop_mono_us = now_mono_us
 
     def _dropped_recently(self, now_mono_us: int) -> bool:
@@ -504,6 +505,8 @@ class Companion:
         if enabled and self.box_feed:
             raise ValueError("steps cannot be offloaded with a live box feed")
         self._offload = enabled
+        for cam in self.cameras:  # until each worker is ready (worker_ready)
+            cam.worker_up = not enabled
 
     @property
     def steps_offloaded(self) -> bool:
@@ -608,6 +611,7 @@ class Companion:
             cam.last_objects = result.objects
             cam.last_capture_mono_us = slot.capture_mono_us
             self.stats.frames_processed += 1
+            cam.frames_processed += 1
             if not self.endpoint.has_time_base(now_mono_us):
                 # Neither TIMESYNC nor the telemetry has given us the autopilot's boot time
                 # yet: a time_boot_ms of 0 would read as ancient to the autopilot, and

@@ -69,6 +69,8 @@ class NoNotifier:
 
 
 STAT_SAMPLES = 200_000
+#: Per camera, the newest latencies kept for the run's summary (13 min at 25 Hz).
+CAMERA_STAT_SAMPLES = 20_000
 
 
 class SampleRing:
@@ -145,6 +147,11 @@ class DaemonSummary:
     # What peers on the MAVLink link did that was refused or bounded (Companion.link_counts:
     # "signature rejected", "autopilot conflicts", "... rate-limited"; empty: nothing).
     link: dict[str, int] = field(default_factory=dict)
+    # Per camera (by name): captured, processed, dropped, latency_p50_ms, latency_p99_ms.
+    cameras: dict[str, dict[str, float]] = field(default_factory=dict)
+    # The worker processes' counters (service/workers.py; empty: in-process).
+    workers: dict[str, Any] = field(default_factory=dict)
+    dropped_at_stop: int = 0  # of ``dropped``: still waiting (or with a worker) at the stop
 
     @property
     def frames_balance(self) -> bool:
@@ -210,6 +217,7 @@ class CompanionHost:
         self.stage_ms: dict[str, SampleRing] = {
             k: SampleRing(STAT_SAMPLES) for k in ("handoff", "queue", "pipeline", "send")
         }
+        self.camera_latencies_ms = [SampleRing(CAMERA_STAT_SAMPLES) for _ in self.cameras]
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
         self.health_checks = 0
@@ -312,6 +320,7 @@ class CompanionHost:
             latency_ms = self.companion.frame_sent(out, sent_mono_us)
             if latency_ms is not None:
                 self.latencies_ms.append(latency_ms)
+                self.camera_latencies_ms[out.camera_id].append(latency_ms)
             st = self.stage_ms
             st["handoff"].append((out.arrival_mono_us - out.capture_mono_us) / 1000.0)
             st["queue"].append((out.process_mono_us - out.arrival_mono_us) / 1000.0)
@@ -416,6 +425,17 @@ class CompanionHost:
         the Companion (the loop was closing), counted as dropped."""
         comp = self.companion
         captured = sum(s.captured for s in camera_stats.values())
+        cameras: dict[str, dict[str, float]] = {}
+        for cam, lat in zip(comp.cameras, self.camera_latencies_ms, strict=True):
+            st = camera_stats.get(cam.name)
+            values = lat.tolist()
+            cameras[cam.name] = {
+                "captured": st.captured if st is not None else 0,
+                "processed": cam.frames_processed,
+                "dropped": cam.frames_dropped,
+                "latency_p50_ms": latency_percentile_ms(values, 50),
+                "latency_p99_ms": latency_percentile_ms(values, 99),
+            }
         rejected = sum(s.rejected_empty + s.rejected_size for s in camera_stats.values())
         return DaemonSummary(
             duration_s=duration_s,
@@ -434,4 +454,5 @@ class CompanionHost:
             stage_ms={k: v.tolist() for k, v in self.stage_ms.items()},
             box_feed=comp.box_feed_counts() if comp.box_feed else {},
             link=comp.link_counts(),
+            cameras=cameras,
         )

@@ -43,6 +43,8 @@ class CameraSlots:
     last_capture_mono_us: int | None = None
     last_processed_capture_mono_us: int | None = None  # whatever its result
     consecutive_errors: int = 0
+    frames_processed: int = 0  # this camera's share of the Companion's counts
+    frames_dropped: int = 0
     # Offloaded steps only: the frame a worker is processing (one at a time), whether
     # the worker can take one, and the pipeline's generation (bumped on each rebuild:
     # the worker rebuilds its own pipeline when the generation it has is older).

@@ -535,7 +535,7 @@ class Companion:
 
     def on_step_done(
         self, camera_id: int, result: FrameResult | None, error_name: str, now_mono_us: int
-    ) -> list[Output]:
+    ) -> list[FrameProcessed]:
         """Camera ``camera_id``'s worker finished the frame it was given at
         ``now_mono_us``: ``result``, or None and the exception's name ``error_name``
         (counted and reported as an in-process step's would be). Returns the

@@ -43,6 +43,7 @@ import logging
 import multiprocessing
 import multiprocessing.connection
 import os
+import secrets
 import signal
 import traceback
 from collections.abc import Sequence
@@ -61,6 +62,8 @@ from .outputs import StepRequested
 
 log = logging.getLogger(__name__)
 
+#: The shared memory blocks are ``/dev/shm/tcm-<daemon pid>-<camera id>-<random>``.
+SHM_PREFIX = "tcm-"
 #: The multiprocessing start method: a fresh interpreter per worker.
 CONTEXT: Literal["spawn", "forkserver"] = "spawn"
 #: A dead worker is started again after this long, doubling up to the maximum ...
@@ -279,7 +282,11 @@ class WorkerPool:
         try:
             for cid, (model, name) in enumerate(zip(cameras, names, strict=True)):
                 shape = (model.height, model.width, 3)
-                shm = shared_memory.SharedMemory(create=True, size=int(np.prod(shape)))
+                shm = shared_memory.SharedMemory(
+                    name=f"{SHM_PREFIX}{os.getpid()}-{cid}-{secrets.token_hex(4)}",
+                    create=True,
+                    size=int(np.prod(shape)),
+                )
                 self._workers.append(_Worker(cid, name, model, shm, shape, pipeline_config))
         except BaseException:
             self._unlink()

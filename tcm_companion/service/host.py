@@ -147,8 +147,12 @@ class DaemonSummary:
     # What peers on the MAVLink link did that was refused or bounded (Companion.link_counts:
     # "signature rejected", "autopilot conflicts", "... rate-limited"; empty: nothing).
     link: dict[str, int] = field(default_factory=dict)
-    # Per camera (by name): captured, processed, dropped, latency_p50_ms, latency_p99_ms.
-    cameras: dict[str, dict[str, float]] = field(default_factory=dict)
+    # Each camera's name and frames processed (sent), in camera-id order (camera_stats is
+    # in the same order).
+    camera_names: list[str] = field(default_factory=list)
+    processed_per_camera: list[int] = field(default_factory=list)
+    # Per camera (by name): processed, dropped, latency_p50_ms, latency_p99_ms.
+    per_camera: dict[str, dict[str, float]] = field(default_factory=dict)
     # The worker processes' counters (service/workers.py; empty: in-process).
     workers: dict[str, Any] = field(default_factory=dict)
     dropped_at_stop: int = 0  # of ``dropped``: still waiting (or with a worker) at the stop
@@ -221,6 +225,7 @@ class CompanionHost:
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
         self.health_checks = 0
+        self.processed_per_camera = [0] * len(self.cameras)
         self._log_doc: dict[str, Any] = {}
 
     # -- inputs ---------------------------------------------------------------------------
@@ -317,6 +322,7 @@ class CompanionHost:
         for out in outputs:
             if not isinstance(out, FrameProcessed) or out.result is None:
                 continue
+            self.processed_per_camera[out.camera_id] += 1
             latency_ms = self.companion.frame_sent(out, sent_mono_us)
             if latency_ms is not None:
                 self.latencies_ms.append(latency_ms)
@@ -425,12 +431,10 @@ class CompanionHost:
         the Companion (the loop was closing), counted as dropped."""
         comp = self.companion
         captured = sum(s.captured for s in camera_stats.values())
-        cameras: dict[str, dict[str, float]] = {}
+        per_camera: dict[str, dict[str, float]] = {}
         for cam, lat in zip(comp.cameras, self.camera_latencies_ms, strict=True):
-            st = camera_stats.get(cam.name)
             values = lat.tolist()
-            cameras[cam.name] = {
-                "captured": st.captured if st is not None else 0,
+            per_camera[cam.name] = {
                 "processed": cam.frames_processed,
                 "dropped": cam.frames_dropped,
                 "latency_p50_ms": latency_percentile_ms(values, 50),
@@ -454,5 +458,7 @@ class CompanionHost:
             stage_ms={k: v.tolist() for k, v in self.stage_ms.items()},
             box_feed=comp.box_feed_counts() if comp.box_feed else {},
             link=comp.link_counts(),
-            cameras=cameras,
+            camera_names=[c.name for c in self.cameras],
+            processed_per_camera=list(self.processed_per_camera),
+            per_camera=per_camera,
         )

@@ -359,3 +359,83 @@ def test_the_daemon_with_a_worker_stops_on_sigterm_and_leaves_no_shared_memory(
     assert not list(Path("/dev/shm").glob(f"{SHM_PREFIX}{proc.pid}-*"))
     for pid in workers.values():
         assert not Path(f"/proc/{pid}").exists()
+
+
+# -- bench --daemon --cameras N --------------------------------------------------------------
+def test_the_bench_rig_configuration_is_a_rig_of_frame_readers(tmp_path: Path) -> None:
+    from tcm_companion.bench.daemon import RigBench, rig_config_toml
+    from tcm_companion.config import AppConfig, load_config
+
+    text = rig_config_toml(
+        RigBench(3, AppConfig()), tmp_path / "frames", "udpout:127.0.0.1:9", tmp_path / "st"
+    )
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    config = load_config(str(path))
+    assert [c.name for c in config.cameras] == ["cam0", "cam1", "cam2"]
+    assert {
+        (c.source.source, c.source.path, c.source.loop, c.source.fps) for c in config.cameras
+    } == {("frames", str(tmp_path / "frames"), True, 25.0)}
+    assert config.mavlink.url == "udpout:127.0.0.1:9"
+    assert config.daemon.state_dir == str(tmp_path / "st") and config.daemon.workers == "auto"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs /proc")
+def test_cpu_per_process_covers_the_children() -> None:
+    from tcm_companion.bench.daemon import process_shares, process_tree
+
+    burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.2: pass\n"
+    child = subprocess.Popen([sys.executable, "-c", burn + "time.sleep(30)"])
+    try:
+        first = process_tree(os.getpid())
+        assert first[os.getpid()][0] == "main"
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 10:
+            last = process_tree(os.getpid())
+            if child.pid in last and last[child.pid][1] >= 0.2:
+                break
+            time.sleep(0.05)
+        assert child.pid in last and last[child.pid][2] > 0  # its CPU and RSS
+        shares = process_shares({}, last, 1.0)
+        assert shares[last[child.pid][0]] >= 20.0  # >= 0.2 s of CPU in "1 s"
+        assert next(iter(shares)) == "main"
+    finally:
+        child.kill()
+        child.wait()
+
+
+def test_rig_bench_targets_pass_and_fail(capsys: pytest.CaptureFixture[str]) -> None:
+    from tcm_companion.bench.daemon import print_daemon_bench, print_rig_scaling
+
+    def result(n: int, cpus: list[int], processed: int, dropped: int, p99: float) -> Any:
+        return {
+            "rig_cameras": n, "cpus": cpus, "duration_s": 60.0, "processed": processed,
+            "dropped": dropped, "dropped_at_stop": 1, "failed": 0, "rejected": 0,
+            "captured": processed + dropped, "frames_balance": True, "latency_p50_ms": 10.0,
+            "latency_p99_ms": p99, "latency_max_ms": p99, "rss_mib_total_max": 300.0,
+            "rss_mib_total_end": 290.0, "cpu_pct_by_process": {"main": 30.0, "tcm-w-cam0": 40.0},
+            "cameras": [{"name": f"cam{i}", "processed": processed // n, "dropped": 0,
+                         "latency_p50_ms": 10.0, "latency_p99_ms": p99} for i in range(n)],
+            "workers": {"started": n, "restarts": 0, "deaths": {}},
+        }  # fmt: skip
+
+    print_daemon_bench(result(4, [0, 1], 6000, 1, 30.0))
+    assert "p99 < 40 ms: PASS" in capsys.readouterr().out
+    print_daemon_bench(result(4, [0, 1], 5990, 11, 30.0))
+    text = capsys.readouterr().out
+    assert "p99 < 40 ms: FAIL (10 dropped" in text and "total 70.0" in text
+    print_rig_scaling([result(8, [0], 6000, 0, 50.0), result(8, [0, 1], 11000, 0, 30.0)])
+    assert "1.83x PASS" in capsys.readouterr().out
+    print_rig_scaling([result(8, [0], 6000, 0, 50.0), result(8, [0, 1], 9000, 0, 30.0)])
+    assert "1.50x FAIL" in capsys.readouterr().out
+
+
+def test_bench_rig_options_go_with_daemon(capsys: pytest.CaptureFixture[str]) -> None:
+    from tcm_companion import cli
+
+    assert cli.main(["bench", "--cameras", "4"]) == 2
+    assert "--cameras goes with --daemon" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["bench", "--daemon", "--cpus", "x"])
+    assert cli.main(["bench", "--daemon", "--cameras", "2", "--cpus", "4095"]) == 2
+    assert "--cpus 4095" in capsys.readouterr().err

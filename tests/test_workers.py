@@ -318,11 +318,13 @@ def test_the_daemon_with_a_worker_stops_on_sigterm_and_leaves_no_shared_memory(
     tmp_path: Path,
 ) -> None:
     """``tcm-companion run`` with its pipeline in a worker process (``workers = 1``):
-    statuses flow, SIGTERM stops it cleanly, the worker is gone and /dev/shm is clean."""
+    statuses flow, SIGTERM stops it cleanly, the worker is gone and /dev/shm is clean; and
+    its lossless flight log replays (in-process) to exactly the results the worker sent."""
     root = Path(__file__).resolve().parents[1]
     env = {**os.environ, "TCM_COMPANION__DAEMON__STATE_DIR": str(tmp_path / "state")}
     cmd = [sys.executable, "-m", "tcm_companion", "run", "--config", str(root / "config.toml"),
-           "--log-level", "INFO", "--set", "daemon.workers=1"]  # fmt: skip
+           "--log-level", "INFO", "--set", "daemon.workers=1",
+           "--set", 'logging.image_format="png"']  # fmt: skip
     proc = subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path
     )
@@ -359,6 +361,16 @@ def test_the_daemon_with_a_worker_stops_on_sigterm_and_leaves_no_shared_memory(
     assert not list(Path("/dev/shm").glob(f"{SHM_PREFIX}{proc.pid}-*"))
     for pid in workers.values():
         assert not Path(f"/proc/{pid}").exists()
+    # Replay steps each frame with the bytes received up to its processing: those after
+    # (received while the worker stepped, logged before its result) are not its telemetry.
+    from tcm_companion.replay.log import compare, replay_log
+
+    logs = sorted((tmp_path / "state" / "logs").glob("*.mcap"))
+    assert logs
+    frames = list(replay_log(logs[-1]))
+    assert len(frames) >= 10
+    assert [d for f in frames for d in compare(f)] == []
+    assert any(o.state != "unknown" for f in frames for o in f.result.objects)
 
 
 # -- bench --daemon --cameras N --------------------------------------------------------------

@@ -43,6 +43,7 @@ import copy
 import json
 import math
 import tomllib
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -226,6 +227,10 @@ def replay_log(
     held: list[ReplayedFrame] = []
     drops = 0  # messages dropped by the last health record
     health_us: int | None = None  # its time
+    # Bytes received, fed to the Companion up to each frame's processing time: a frame
+    # stepped in a worker process (docs/daemon.md) is logged when its result came back,
+    # after the bytes received meanwhile, which its pipeline did not have.
+    received: deque[tuple[int, bytes]] = deque()
     image_topic = log_topics.camera_image(camera_id)
     topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT, log_topics.BOXES}
     topics.add(log_topics.HEALTH)
@@ -264,7 +269,7 @@ def replay_log(
             yield from held
             held.clear()
         elif rec.topic == log_topics.MAVLINK_IN:
-            companion.receive_data(rec.data, t_mono_us)
+            received.append((t_mono_us, rec.data))
         elif rec.topic == log_topics.BOXES:  # the live box feed, as the daemon received it
             companion.on_box_datagram(str(decode_json(rec).get("datagram", "")).encode(), t_mono_us)
         elif rec.topic == image_topic:
@@ -303,11 +308,15 @@ def replay_log(
                     missing.append(MissingFrame(t_capture, why))
                 continue
             offset = doc.get("clock_offset_us")
+            t_process = int(doc.get("t_process_us", t_mono_us))
+            while received and received[0][0] <= t_process:
+                t_received, data = received.popleft()
+                companion.receive_data(data, t_received)
             result = companion.replay_frame(
                 camera_id,
                 frame_image,
                 t_capture,
-                int(doc.get("t_process_us", t_mono_us)),
+                t_process,
                 clock_offset_us=float(offset) if offset is not None else None,
                 override=str(doc.get("override") or ""),
             )

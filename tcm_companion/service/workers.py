@@ -18,7 +18,8 @@ With ``[daemon] workers`` (:func:`workers_wanted`), the daemon puts the
   :class:`~tcm_companion.core.pipeline.FrameResult` (or the exception's name). One clock:
   every time is the daemon's; the worker reads none (its stage timings aside).
 - **Processes.** Started with the ``spawn`` context (a fresh interpreter: never ``fork``
-  a threaded uvloop process), named ``tcm-w-<camera>`` (``/proc/<pid>/comm``) so that
+  a threaded uvloop process), running :func:`.worker_process.worker_main` (a module that
+  imports the core only: a worker's memory is the pipeline's), named ``tcm-w-<camera>`` (``/proc/<pid>/comm``) so that
   ``top`` and ``bench --daemon`` can tell them apart. They ignore SIGINT and SIGTERM and
   end when their pipe closes (the daemon stopping, or dying): no orphans.
 - **Failures.** A worker that dies (its pipe reads EOF) is reported as a
@@ -45,20 +46,18 @@ import multiprocessing.connection
 import os
 import secrets
 import signal
-import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from multiprocessing import resource_tracker, shared_memory
+from multiprocessing import shared_memory
 from multiprocessing.process import BaseProcess
-from pathlib import Path
-from typing import Any, Literal, Protocol, cast
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
 from ..core.camera import CameraModel
-from ..core.pipeline import FrameResult, Pipeline, PipelineConfig
-from ..core.telemetry import TelemetryBuffer
+from ..core.pipeline import FrameResult, PipelineConfig
 from .outputs import StepRequested
+from .worker_process import worker_main
 
 log = logging.getLogger(__name__)
 
@@ -122,106 +121,6 @@ class PipeWatcher(Protocol):
 
     def watch(self, fd: int, camera_id: int) -> None: ...
     def unwatch(self, fd: int) -> None: ...
-
-
-class _ShippedTelemetry:
-    """What a worker's pipeline reads as its telemetry: the attitude and position the
-    daemon computed for the frame at hand (from its one buffer, at the capture time)."""
-
-    def __init__(self) -> None:
-        self.R_ned_from_body: np.ndarray | None = None
-        self.position: tuple[np.ndarray, np.ndarray] | None = None
-
-    def attitude_at(self, t_us: int) -> np.ndarray | None:
-        return self.R_ned_from_body
-
-    def position_at(self, t_us: int) -> tuple[np.ndarray, np.ndarray] | None:
-        return self.position
-
-
-def _attach(name: str) -> shared_memory.SharedMemory:
-    """The daemon's shared memory block ``name``, without registering it with the resource
-    tracker (Python 3.11 registers every attach, and the tracker would unlink the
-    daemon's block, or warn of a leak, when this worker ends)."""
-    register = resource_tracker.register
-    resource_tracker.register = lambda *args, **kwargs: None
-    try:
-        return shared_memory.SharedMemory(name=name)
-    finally:
-        resource_tracker.register = register
-
-
-def _name_process(name: str) -> None:
-    with contextlib.suppress(OSError):
-        Path("/proc/self/comm").write_text(name.encode("utf-8")[:15].decode("utf-8", "ignore"))
-
-
-def _new_pipeline(
-    model: CameraModel,
-    config: PipelineConfig,
-    telemetry: _ShippedTelemetry,
-    detector_model: bytes | None,
-) -> Pipeline:
-    # The pipeline reads attitude_at and position_at of its telemetry, nothing else.
-    return Pipeline(
-        model,
-        config,
-        telemetry=cast(TelemetryBuffer, telemetry),
-        detector_model=detector_model,
-    )
-
-
-def worker_main(
-    camera_id: int,
-    proc_name: str,
-    model: CameraModel,
-    config: PipelineConfig,
-    detector_model: bytes | None,
-    shm_name: str,
-    shape: tuple[int, ...],
-    conn: multiprocessing.connection.Connection,
-    opencv_threads: int,
-) -> None:
-    """A worker process: camera ``camera_id``'s pipeline, one frame per message of
-    ``conn``, until the pipe closes or says ``stop``."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon stops us (closes the pipe)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _name_process(proc_name)
-    import cv2
-
-    if opencv_threads:
-        cv2.setNumThreads(opencv_threads)
-    shm = _attach(shm_name)
-    frame = np.ndarray(shape, dtype=np.uint8, buffer=shm.buf)
-    telemetry = _ShippedTelemetry()
-    pipeline = _new_pipeline(model, config, telemetry, detector_model)
-    try:
-        conn.send(("ready", os.getpid()))
-        while True:
-            try:
-                msg = conn.recv()
-            except (EOFError, OSError):
-                break
-            kind = msg[0]
-            if kind == "stop":
-                break
-            if kind == "config":
-                pipeline = _new_pipeline(model, msg[1], telemetry, detector_model)
-                continue
-            _, capture_us, R, pos, vel, image = msg
-            telemetry.R_ned_from_body = R
-            telemetry.position = None if pos is None else (pos, vel)
-            if image is None:
-                image = frame.copy()  # the pipeline may keep what it is given
-            try:
-                result = pipeline.step(image, capture_us)
-            except Exception as exc:  # one bad frame must not stop the worker
-                conn.send(("done", None, type(exc).__name__, traceback.format_exc()))
-            else:
-                conn.send(("done", result, "", ""))
-    finally:
-        del frame
-        shm.close()
 
 
 @dataclass

@@ -599,6 +599,9 @@ def print_rig_bench(r: dict[str, Any], out: Callable[[str], Any] = print) -> Non
         + ", ".join(f"{k} {v:.1f}" for k, v in by_proc.items())
         + f"; total {total:.1f}"
     )
+    by_thread = r.get("cpu_pct_by_thread") or {}
+    if by_thread:
+        out("  main process by thread: " + ", ".join(f"{k} {v:.1f}" for k, v in by_thread.items()))
     out(
         f"  RSS summed over the processes (MiB; shared pages counted in each):"
         f" max {r['rss_mib_total_max']:.1f}, end {r['rss_mib_total_end']:.1f}"

@@ -46,7 +46,8 @@ import multiprocessing.connection
 import os
 import secrets
 import signal
-from collections.abc import Sequence
+import sys
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing import shared_memory
 from multiprocessing.process import BaseProcess
@@ -121,6 +122,25 @@ class PipeWatcher(Protocol):
 
     def watch(self, fd: int, camera_id: int) -> None: ...
     def unwatch(self, fd: int) -> None: ...
+
+
+@contextlib.contextmanager
+def _main_not_rerun() -> Iterator[None]:
+    """While a worker is spawned: a ``__main__`` run from a file (the ``tcm-companion``
+    script, pytest) is not run again in it. ``spawn`` runs the parent's main script in
+    the child (as ``__mp_main__``) unless it was started as a module (``python -m``);
+    the script imports the whole CLI, doubling the worker's memory, and the worker needs
+    none of it."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if main is None or path is None or getattr(main, "__spec__", None) is not None:
+        yield
+        return
+    del main.__file__
+    try:
+        yield
+    finally:
+        main.__file__ = path
 
 
 @dataclass
@@ -234,7 +254,8 @@ class WorkerPool:
             ),
             daemon=True,
         )
-        proc.start()
+        with _main_not_rerun():
+            proc.start()
         theirs.close()  # the worker's end: only the worker holds it (EOF when it dies)
         w.process, w.conn = proc, ours
         w.up = w.busy = False

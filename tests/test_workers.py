@@ -341,7 +341,8 @@ def test_the_daemon_with_a_worker_stops_on_sigterm_and_leaves_no_shared_memory(
             m = re.search(r"worker processes: (\{.*\})", line)
             if m:
                 workers = ast.literal_eval(m.group(1))
-            if re.search(r"latency p50 [0-9]", line):
+            # Three status lines with frames flowing (a second apart): a log to replay.
+            if sum(bool(re.search(r"latency p50 [0-9]", ln)) for ln in lines) >= 3:
                 break
         assert workers and re.search(r"latency p50 [0-9]", lines[-1]), "".join(lines[-20:])
         proc.send_signal(signal.SIGTERM)

@@ -452,3 +452,24 @@ def test_bench_rig_options_go_with_daemon(capsys: pytest.CaptureFixture[str]) ->
         cli.main(["bench", "--daemon", "--cpus", "x"])
     assert cli.main(["bench", "--daemon", "--cameras", "2", "--cpus", "4095"]) == 2
     assert "--cpus 4095" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # a worker process in a subprocess
+def test_a_tool_that_raises_without_stopping_its_pool_still_exits_clean() -> None:
+    """Workers ignore SIGTERM (they end when their pipe closes), so multiprocessing's own
+    exit handler would wait for them forever; the pool stops itself at exit first."""
+    script = (
+        "from tcm_companion.core.camera import Equirectangular\n"
+        "from tcm_companion.core.pipeline import PipelineConfig\n"
+        "from tcm_companion.service.workers import WorkerPool\n"
+        "pool = WorkerPool([Equirectangular(64, 32)], ['c0'], PipelineConfig())\n"
+        "pool.start(0)\n"
+        "print(pool.wait(0, 60.0, 0), pool.shm_names[0], flush=True)\n"
+        "raise SystemExit(3)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=90
+    )
+    assert proc.returncode == 3, proc.stderr
+    assert "WorkerReady" in proc.stdout and "leaked" not in proc.stderr, proc.stderr
+    assert not Path("/dev/shm", proc.stdout.split()[-1]).exists()

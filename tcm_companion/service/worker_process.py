@@ -20,7 +20,7 @@ from typing import cast
 import numpy as np
 
 from ..core.camera import CameraModel
-from ..core.pipeline import Pipeline, PipelineConfig
+from ..core.pipeline import FrameResult, Pipeline, PipelineConfig
 from ..core.telemetry import TelemetryBuffer
 
 
@@ -89,6 +89,11 @@ def worker_main(
     _name_process(proc_name)
     import cv2
 
+    # What the pipeline imports lazily, now rather than in the middle of a frame: the
+    # tracker's assignment (core/tracking.py) imported SciPy on the first frame with two
+    # tracks, 0.3 s on a quiet machine, 8 s seen on a loaded one (a frame that late).
+    import scipy.optimize  # noqa: F401
+
     if opencv_threads:
         cv2.setNumThreads(opencv_threads)
     shm = _attach(shm_name)
@@ -96,7 +101,10 @@ def worker_main(
     telemetry = _ShippedTelemetry()
     pipeline = _new_pipeline(model, config, telemetry, detector_model)
     try:
-        conn.send(("ready", os.getpid()))
+        try:
+            conn.send(("ready", os.getpid()))
+        except OSError:  # the daemon stopped before we were ready
+            return
         while True:
             try:
                 msg = conn.recv()
@@ -113,12 +121,15 @@ def worker_main(
             telemetry.position = None if pos is None else (pos, vel)
             if image is None:
                 image = frame.copy()  # the pipeline may keep what it is given
+            reply: tuple[str, FrameResult | None, str, str]
             try:
-                result = pipeline.step(image, capture_us)
+                reply = ("done", pipeline.step(image, capture_us), "", "")
             except Exception as exc:  # one bad frame must not stop the worker
-                conn.send(("done", None, type(exc).__name__, traceback.format_exc()))
-            else:
-                conn.send(("done", result, "", ""))
+                reply = ("done", None, type(exc).__name__, traceback.format_exc())
+            try:
+                conn.send(reply)
+            except OSError:  # the daemon closed the pipe meanwhile (stopping): done
+                break
     finally:
         del frame
         shm.close()

@@ -39,6 +39,7 @@ daemon's monotonic clock, passed in.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import logging
 import multiprocessing
@@ -47,6 +48,7 @@ import os
 import secrets
 import signal
 import sys
+import weakref
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing import shared_memory
@@ -124,6 +126,12 @@ class PipeWatcher(Protocol):
     def unwatch(self, fd: int) -> None: ...
 
 
+def _stop_at_exit(ref: weakref.ref[WorkerPool]) -> None:
+    pool = ref()
+    if pool is not None:
+        pool.stop()
+
+
 @contextlib.contextmanager
 def _main_not_rerun() -> Iterator[None]:
     """While a worker is spawned: a ``__main__`` run from a file (the ``tcm-companion``
@@ -198,6 +206,10 @@ class WorkerPool:
         self.stats = WorkerStats()
         self._workers: list[_Worker] = []
         self._stopped = False
+        # A process that exits without stop() (an exception in a tool) would otherwise
+        # hang in multiprocessing's own exit handler, joining workers that ignore SIGTERM
+        # and wait for their pipes to close; registered after it, this runs first.
+        atexit.register(_stop_at_exit, weakref.ref(self))
         try:
             for cid, (model, name) in enumerate(zip(cameras, names, strict=True)):
                 shape = (model.height, model.width, 3)

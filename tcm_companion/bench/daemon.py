@@ -583,7 +583,9 @@ def print_rig_bench(r: dict[str, Any], out: Callable[[str], Any] = print) -> Non
     for c in r.get("cameras", []):
         fps = c["processed"] / dur if dur > 0 and c.get("processed") is not None else float("nan")
         out(
-            f"  {c['name']}: {fps:5.1f} fps processed of 25, dropped {c.get('dropped', '?')},"
+            f"  {c['name']}: {fps:5.1f} fps processed of 25 (frames: captured"
+            f" {c.get('captured', '?')}, processed {c.get('processed', '?')}, dropped"
+            f" {c.get('dropped', '?')}),"
             f" latency p50 {c.get('latency_p50_ms', float('nan')):.1f}"
             f" p99 {c.get('latency_p99_ms', float('nan')):.1f} ms"
         )
@@ -599,6 +601,12 @@ def print_rig_bench(r: dict[str, Any], out: Callable[[str], Any] = print) -> Non
         + ", ".join(f"{k} {v:.1f}" for k, v in by_proc.items())
         + f"; total {total:.1f}"
     )
+    stages = ", ".join(
+        f"{k} {v['p50']:.2f}/{v['p99']:.2f}"
+        for k, v in r.get("stages_ms", {}).items()
+        if v["p50"] is not None
+    )
+    out(f"  where the time goes (p50/p99 ms): {stages}")
     by_thread = r.get("cpu_pct_by_thread") or {}
     if by_thread:
         out("  main process by thread: " + ", ".join(f"{k} {v:.1f}" for k, v in by_thread.items()))

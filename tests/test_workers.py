@@ -117,6 +117,17 @@ class RigDriver:
                 self.turn(self.now)
         self.now = max(self.now, until_us)
 
+    def set_threshold(self, value: float) -> None:
+        """A ground station sets TCM_THRESH (the pipelines are rebuilt)."""
+        from tcm_companion.mavlink import tcm_dialect as d
+
+        msg = d.MAVLink(None, srcSystem=255, srcComponent=190).param_set_encode(
+            1, 191, b"TCM_THRESH", value, d.MAV_PARAM_TYPE_REAL32
+        )
+        gen = [c.generation for c in self.companion.cameras]
+        self.companion.receive_data(bytes(msg.pack(d.MAVLink(None, 255, 190))), self.now)
+        assert [c.generation for c in self.companion.cameras] == [g + 1 for g in gen]
+
     def run(self, first: int, last: int) -> None:
         wait = self.companion.config.attitude_wait_max_us
         for i in range(first, last):
@@ -163,14 +174,18 @@ def shm_files(names: list[str]) -> list[str]:
 def test_worker_results_equal_in_process_results_and_nothing_is_left_in_shm(flight: Any) -> None:
     n = 75
     inproc = RigDriver(flight)
-    inproc.run(0, n)
+    inproc.run(0, 40)
+    inproc.set_threshold(0.2)  # a parameter change: the pipelines are rebuilt
+    inproc.run(40, n)
     pool = WorkerPool([CAMERA] * N_CAMERAS, ["front", "rear"], PipelineConfig())
     names = pool.shm_names
     try:
         assert len(shm_files(names)) == N_CAMERAS
         worker = RigDriver(flight, pool)
         assert len(pool.pids()) == N_CAMERAS and os.getpid() not in pool.pids().values()
-        worker.run(0, n)
+        worker.run(0, 40)
+        worker.set_threshold(0.2)  # the workers get the new configuration, rebuild
+        worker.run(40, n)
     finally:
         pool.stop()
     assert shm_files(names) == []
@@ -181,6 +196,8 @@ def test_worker_results_equal_in_process_results_and_nothing_is_left_in_shm(flig
         assert any(math.isfinite(x) for x in disparities)
     some = next(r for r in worker.results[0] if r is not None and r.objects)
     assert differences(some, dataclasses.replace(some, objects=some.objects[:-1]))  # it sees
+    # The rebuilt pipelines started over (in the workers too) with the new threshold.
+    assert worker.results[0][40] is not None and worker.results[0][40].frame_index == 0
     # The comparison is not of empty results: objects were tracked and decided.
     states = {o.state for r in inproc.results[0] if r is not None for o in r.objects}
     assert states - {"unknown"}, states

@@ -490,3 +490,21 @@ def test_a_tool_that_raises_without_stopping_its_pool_still_exits_clean() -> Non
     assert proc.returncode == 3, proc.stderr
     assert "WorkerReady" in proc.stdout and "leaked" not in proc.stderr, proc.stderr
     assert not Path("/dev/shm", proc.stdout.split()[-1]).exists()
+
+
+@pytest.mark.slow  # the daemon, two workers and the mock autopilot, in real time
+def test_bench_daemon_runs_a_rig_with_a_worker_per_camera() -> None:
+    from tcm_companion.bench.daemon import RigBench, print_daemon_bench, run_daemon_bench
+    from tcm_companion.config import AppConfig
+
+    base = AppConfig()
+    base = dataclasses.replace(base, daemon=dataclasses.replace(base.daemon, workers=1))
+    lines: list[str] = []
+    r = run_daemon_bench(8.0, frames_s=2.0, out=lines.append, rig=RigBench(2, base))
+    print_daemon_bench(r, lines.append)
+    text = "\n".join(lines)
+    assert r["frames_balance"] and r["workers"]["started"] == 2, text
+    assert [c["name"] for c in r["cameras"]] == ["cam0", "cam1"]
+    assert all(c["processed"] > 25 for c in r["cameras"]), text
+    assert {"main", "tcm-w-cam0", "tcm-w-cam1"} <= set(r["cpu_pct_by_process"]), text
+    assert "cam1:" in text and "CPU by process" in text and "2 worker processes" in text

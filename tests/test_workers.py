@@ -324,6 +324,7 @@ def test_workers_setting() -> None:
     assert not workers_wanted("auto", 4, n_cpus=1)
     assert workers_wanted(1, 1, n_cpus=1)
     assert not workers_wanted(0, 8, n_cpus=8)
+    assert DaemonConfig(workers=0).workers == 0
     with pytest.raises(ValueError, match="workers"):
         DaemonConfig(workers=2)
     with pytest.raises(ValueError, match="workers"):
@@ -508,3 +509,16 @@ def test_bench_daemon_runs_a_rig_with_a_worker_per_camera() -> None:
     assert all(c["processed"] > 25 for c in r["cameras"]), text
     assert {"main", "tcm-w-cam0", "tcm-w-cam1"} <= set(r["cpu_pct_by_process"]), text
     assert "cam1:" in text and "CPU by process" in text and "2 worker processes" in text
+
+
+def test_workers_in_the_configuration_file(tmp_path: Path) -> None:
+    from tcm_companion.config import ConfigError, load_config
+
+    path = tmp_path / "c.toml"
+    for text, want in (('"auto"', "auto"), ("0", 0), ("1", 1)):
+        path.write_text(f"[daemon]\nworkers = {text}\n")
+        assert load_config(str(path)).daemon.workers == want
+    for text in ("2", '"yes"', "true"):
+        path.write_text(f"[daemon]\nworkers = {text}\n")
+        with pytest.raises(ConfigError, match=r"c.toml: \[daemon\].* workers"):
+            load_config(str(path))

@@ -34,7 +34,6 @@ RANGES: dict[str, str] = {
     "box_feed_timeout_us": "[10000, 60000000] µs",
     "box_tracking_camera": "[0, 255]",  # an index into the cameras
     "box_tracking_latency_us": "[0, 1000000] µs",
-    "workers": "[0, 1]",  # or "auto"; 0: in-process, 1: a process per camera
 }
 #: The settings that may be 0 (every other number must be positive).
 MAY_BE_ZERO = frozenset(k for k, spec in RANGES.items() if spec.startswith("[0,"))
@@ -90,8 +89,8 @@ class DaemonConfig:
         # The sign of each number (the loader checks the whole range, RANGES, first).
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if not isinstance(value, int) or isinstance(value, bool):
-                continue
+            if not isinstance(value, int) or isinstance(value, bool) or f.name == "workers":
+                continue  # workers: "auto", 0 or 1 (below)
             if f.name in MAY_BE_ZERO:
                 if value < 0:
                     raise ValueError(f"{f.name} must be >= 0, got {value}")

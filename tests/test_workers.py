@@ -444,7 +444,7 @@ def test_rig_bench_targets_pass_and_fail(capsys: pytest.CaptureFixture[str]) -> 
             "dropped": dropped, "dropped_at_stop": 1, "failed": 0, "rejected": 0,
             "captured": processed + dropped, "frames_balance": True, "latency_p50_ms": 10.0,
             "latency_p99_ms": p99, "latency_max_ms": p99, "rss_mib_total_max": 300.0,
-            "rss_mib_total_end": 290.0, "cpu_pct_by_process": {"main": 30.0, "tcm-w-cam0": 40.0},
+            "rss_mib_total_middle": 290.0, "cpu_pct_by_process": {"main": 30.0, "tcm-w-cam0": 40.0},
             "cameras": [{"name": f"cam{i}", "processed": processed // n, "dropped": 0,
                          "latency_p50_ms": 10.0, "latency_p99_ms": p99} for i in range(n)],
             "workers": {"started": n, "restarts": 0, "deaths": {}},

@@ -105,7 +105,8 @@ def _children(pid: int) -> list[int]:
 
 def process_tree(pid: int) -> dict[int, tuple[str, float, int]]:
     """``pid`` and its descendants: ``{pid: (name, CPU seconds, RSS bytes)}``. The CPU is
-    user+system of the process and of its children it has waited for; the name is its
+    each process's own user+system (its children are listed themselves: with the
+    children's time a parent has reaped, a stopped worker would count twice); the name is its
     ``comm`` (the daemon's workers set theirs to ``tcm-w-<camera>``), ``main`` for ``pid``
     itself, and ``resource_tracker`` for multiprocessing's."""
     out: dict[int, tuple[str, float, int]] = {}
@@ -120,7 +121,7 @@ def process_tree(pid: int) -> dict[int, tuple[str, float, int]]:
         except OSError:
             continue
         fields = stat[stat.rindex(")") + 2 :].split()
-        cpu = sum(int(f) for f in fields[11:15]) / TICKS  # utime stime cutime cstime
+        cpu = (int(fields[11]) + int(fields[12])) / TICKS  # utime stime
         rss = int(statm.split()[1]) * PAGE
         name = "main" if p == pid else comm
         if b"resource_tracker" in cmdline:
@@ -478,6 +479,7 @@ def _bench_in(
     procs_first: dict[int, tuple[str, float, int]] = {}
     procs_last: dict[int, tuple[str, float, int]] = {}
     rss_total: list[int] = []
+    rss_by_process: list[dict[str, float]] = []  # per sample: MiB by process name
     t0 = time.monotonic()
     try:
         next_report = t0 + 10.0
@@ -496,6 +498,10 @@ def _bench_in(
                         procs_first = tree
                     procs_last.update(tree)
                     rss_total.append(sum(r for _n, _c, r in tree.values()))
+                    by_name: dict[str, float] = {}
+                    for name, _c, rss_bytes in tree.values():
+                        by_name[name] = by_name.get(name, 0.0) + rss_bytes / 2**20
+                    rss_by_process.append(by_name)
             if time.monotonic() >= next_report and samples:
                 w, c, r = samples[-1]
                 out(f"  {w:5.0f} s: RSS {r / 2**20:6.1f} MiB, CPU so far {c:6.1f} s")
@@ -538,7 +544,13 @@ def _bench_in(
             procs_first, procs_last, threads_wall[1] - threads_wall[0]
         ),
         "rss_mib_total_max": max(rss_total) / 2**20 if rss_total else float("nan"),
-        "rss_mib_total_end": rss_total[-1] / 2**20 if rss_total else float("nan"),
+        # The middle sample: at the end the workers may be gone already.
+        "rss_mib_total_middle": rss_total[len(rss_total) // 2] / 2**20
+        if rss_total
+        else float("nan"),
+        "rss_mib_by_process_middle": rss_by_process[len(rss_by_process) // 2]
+        if rss_by_process
+        else {},
         "rig_cameras": rig.cameras if rig is not None else 1,
         "cpus": list(rig.cpus) if rig is not None and rig.cpus is not None else None,
         "loadavg_before": load_before,
@@ -597,7 +609,7 @@ def print_rig_bench(r: dict[str, Any], out: Callable[[str], Any] = print) -> Non
     by_proc = r.get("cpu_pct_by_process") or {}
     total = sum(by_proc.values())
     out(
-        "  CPU by process (% of one core, children included): "
+        "  CPU by process (% of one core; the daemon's main process and each child): "
         + ", ".join(f"{k} {v:.1f}" for k, v in by_proc.items())
         + f"; total {total:.1f}"
     )
@@ -610,9 +622,12 @@ def print_rig_bench(r: dict[str, Any], out: Callable[[str], Any] = print) -> Non
     by_thread = r.get("cpu_pct_by_thread") or {}
     if by_thread:
         out("  main process by thread: " + ", ".join(f"{k} {v:.1f}" for k, v in by_thread.items()))
+    rss = r.get("rss_mib_by_process_middle") or {}
+    if rss:
+        out("  RSS by process mid-run (MiB): " + ", ".join(f"{k} {v:.0f}" for k, v in rss.items()))
     out(
         f"  RSS summed over the processes (MiB; shared pages counted in each):"
-        f" max {r['rss_mib_total_max']:.1f}, end {r['rss_mib_total_end']:.1f}"
+        f" max {r['rss_mib_total_max']:.1f}, middle of the run {r['rss_mib_total_middle']:.1f}"
     )
     running = int(r["dropped"]) - int(r.get("dropped_at_stop", 0))
     out(

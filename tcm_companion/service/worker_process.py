@@ -22,6 +22,11 @@ import numpy as np
 from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult, Pipeline, PipelineConfig
 from ..core.telemetry import TelemetryBuffer
+from ..io.allocator import trim_heap, tune_allocator
+
+#: After this many frames a worker gives its heap's free memory back once (the first
+#: frames' one-off allocations), as the daemon does at its fifth health check.
+TRIM_AFTER_FRAMES = 125
 
 
 class _ShippedTelemetry:
@@ -87,6 +92,10 @@ def worker_main(
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon stops us (closes the pipe)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _name_process(proc_name)
+    # The daemon's allocator settings (the CLI sets them in its process; a spawned
+    # interpreter starts with glibc's): numpy's per-frame temporaries reuse the heap
+    # instead of page-faulting fresh mappings (io/allocator.py).
+    tune_allocator()
     import cv2
 
     # What the pipeline imports lazily, now rather than in the middle of a frame: the
@@ -100,6 +109,8 @@ def worker_main(
     frame = np.ndarray(shape, dtype=np.uint8, buffer=shm.buf)
     telemetry = _ShippedTelemetry()
     pipeline = _new_pipeline(model, config, telemetry, detector_model)
+    trim_heap()  # start-up's garbage (imports) back to the kernel
+    frames = 0
     try:
         try:
             conn.send(("ready", os.getpid()))
@@ -130,6 +141,9 @@ def worker_main(
                 conn.send(reply)
             except OSError:  # the daemon closed the pipe meanwhile (stopping): done
                 break
+            frames += 1
+            if frames == TRIM_AFTER_FRAMES:  # as the daemon does once it runs
+                trim_heap()
     finally:
         del frame
         shm.close()

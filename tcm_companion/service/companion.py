@@ -29,6 +29,14 @@ The surface::
     comp.frame_sent(output, sent_mono_us)                           # the bytes went out
     when = comp.next_deadline_us()                                  # call process_due then
 
+With several cameras the daemon runs the pipelines in worker processes
+(:mod:`.workers`): after ``comp.offload_steps()``, ``process_due`` hands out a
+:class:`~.outputs.StepRequested` (the frame and the telemetry its pipeline reads) for each
+camera whose worker is idle instead of running the pipeline, and the driver gives each
+result back with ``outputs = comp.on_step_done(camera_id, result, error_name, now_mono_us)``
+(``worker_ready`` / ``worker_lost`` say when a worker can take frames). Everything after
+the step is the same code either way (``_finish``).
+
 After each ``process_due`` a driver handles the outputs in order (a processed frame's
 result is logged *before* its bytes are written: replay relies on that order), then
 writes ``data_to_send()`` and reports the write time of each processed frame with

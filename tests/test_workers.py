@@ -26,6 +26,7 @@ from tcm_companion.service.daemon_config import DaemonConfig
 from tcm_companion.service.outputs import FrameProcessed, StepRequested
 from tcm_companion.service.workers import (
     SHM_PREFIX,
+    STEP_TIMEOUT_US,
     StepDone,
     WorkerDied,
     WorkerPool,
@@ -522,3 +523,27 @@ def test_workers_in_the_configuration_file(tmp_path: Path) -> None:
         path.write_text(f"[daemon]\nworkers = {text}\n")
         with pytest.raises(ConfigError, match=r"c.toml: \[daemon\].* workers"):
             load_config(str(path))
+
+
+@pytest.mark.slow  # a worker process started twice
+def test_a_stuck_worker_is_killed_and_restarted(flight: Any) -> None:
+    scenario, frames = flight
+    pool = WorkerPool([CAMERA], ["front"], PipelineConfig())
+    try:
+        pool.start(0)
+        assert any(isinstance(e, WorkerReady) for e in pool.wait(0, 60.0, 0))
+        pid = pool.pids()["front"]
+        os.kill(pid, signal.SIGSTOP)  # a pipeline that never returns
+        t = int(scenario.frame_times_us[0])
+        req = StepRequested(0, frames[0], t, None, None, None, 1_000, 0, PipelineConfig())
+        assert pool.submit(req) and not pool.idle(0)
+        assert pool.kill_stuck(1_000 + STEP_TIMEOUT_US - 1) == []
+        assert pool.kill_stuck(1_000 + STEP_TIMEOUT_US) == [0]
+        events = pool.wait(0, 30.0, 2 * STEP_TIMEOUT_US)
+        died = [e for e in events if isinstance(e, WorkerDied)]
+        assert len(events) == len(died) == 1 and "SIGKILL" in died[0].why
+        assert pool.restart_due(10**9) == [0]
+        assert any(isinstance(e, WorkerReady) for e in pool.wait(0, 60.0, 10**9))
+        assert pool.pids()["front"] != pid
+    finally:
+        pool.stop()

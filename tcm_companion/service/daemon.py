@@ -214,6 +214,7 @@ class Daemon:
                 comp.worker_ready(ev.camera_id, now_mono_us)
             elif isinstance(ev, WorkerDied):
                 comp.worker_lost(ev.camera_id, ev.why, now_mono_us)
+        pool.kill_stuck(now_mono_us)
         pool.restart_due(now_mono_us)
         return out
 

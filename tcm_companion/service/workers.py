@@ -25,8 +25,9 @@ With ``[daemon] workers`` (:func:`workers_wanted`), the daemon puts the
 - **Failures.** A worker that dies (its pipe reads EOF) is reported as a
   :class:`WorkerDied` (the daemon tells the Companion: a counted fault, that camera's
   objects ``unknown``) and started again after a backoff (0.5 s, doubling to 10 s; back to
-  0.5 s after a worker ran 30 s). An exception in the pipeline is not a death: it comes
-  back as a :class:`StepDone` without a result.
+  0.5 s after a worker ran 30 s). A worker on one frame for :data:`STEP_TIMEOUT_US` is
+  killed (:meth:`WorkerPool.kill_stuck`): the same death. An exception in the pipeline
+  is not a death: it comes back as a :class:`StepDone` without a result.
 - **Shared memory** is unlinked by :meth:`WorkerPool.stop` (the daemon's exit, SIGTERM
   included); if the daemon is killed outright, multiprocessing's resource tracker (a
   process of its own) unlinks it.
@@ -73,6 +74,8 @@ BACKOFF_FIRST_US = 500_000
 BACKOFF_MAX_US = 10_000_000
 #: ... and the backoff starts over once a worker has run this long.
 BACKOFF_RESET_US = 30_000_000
+#: A worker still on one frame after this long is stuck: it is killed (and so restarted).
+STEP_TIMEOUT_US = 5_000_000
 
 
 def workers_wanted(setting: int | str, n_cameras: int, n_cpus: int | None = None) -> bool:
@@ -166,6 +169,7 @@ class _Worker:
     conn: multiprocessing.connection.Connection | None = None
     up: bool = False  # ready and not dead
     busy: bool = False
+    busy_since_us: int = 0  # when it was given the frame it is on
     started_mono_us: int = 0
     backoff_us: int = BACKOFF_FIRST_US
     restart_at_us: int | None = None
@@ -337,6 +341,20 @@ class WorkerPool:
         w = self._workers[camera_id]
         return w.up and not w.busy
 
+    def kill_stuck(self, now_mono_us: int, timeout_us: int = STEP_TIMEOUT_US) -> list[int]:
+        """Kill every worker that has been on one frame for ``timeout_us`` or more (a
+        pipeline that hangs would otherwise hold its camera forever): its death comes
+        through :meth:`receive` as any other, and it is restarted. Their camera ids."""
+        killed = []
+        for w in self._workers:
+            if w.busy and w.process is not None and now_mono_us - w.busy_since_us >= timeout_us:
+                log.error("worker %s: stuck on a frame for %.1f s, killed", w.name,
+                          (now_mono_us - w.busy_since_us) / 1e6)  # fmt: skip
+                w.process.kill()
+                w.busy = False  # killed once; its EOF follows
+                killed.append(w.camera_id)
+        return killed
+
     def submit(self, req: StepRequested) -> bool:
         """Hand ``req``'s frame to its camera's worker; False if it cannot take it (not
         ready, busy, or its pipe broke: its death is reported by :meth:`receive`)."""
@@ -360,6 +378,7 @@ class WorkerPool:
         except (OSError, ValueError):
             return False
         w.busy = True
+        w.busy_since_us = req.requested_mono_us
         return True
 
     def receive(self, camera_id: int, now_mono_us: int) -> list[WorkerEvent]:

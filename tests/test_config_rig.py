@@ -371,6 +371,8 @@ def test_run_delivers_frames_from_every_camera_of_the_rig(
         "logging.enabled": "false",
         "daemon.state_dir": str(tmp_path / "state"),
         "mavlink.url": "udpout:127.0.0.1:9",  # discard: nobody answers
+        # in-process: starting a worker per camera would take ~1 s of the 2 (test_workers)
+        "daemon.workers": "0",
     }.items():
         argv += ["--set", f"{k}={v}"]
     args = cli.build_parser().parse_args(argv)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Any
 
@@ -16,6 +17,18 @@ from .common import (
     resolution,
     whole_number,
 )
+
+
+def cpu_list(text: str) -> tuple[int, ...]:
+    """``--cpus``: CPU numbers separated by commas (``0`` or ``0,1``)."""
+    try:
+        cpus = tuple(sorted({int(x) for x in text.split(",") if x.strip()}))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"CPU numbers separated by commas, got {text!r}") from None
+    if not cpus or min(cpus) < 0:
+        raise argparse.ArgumentTypeError(f"CPU numbers separated by commas, got {text!r}")
+    return cpus
+
 
 #: ``--cpu-quota``: a fraction of one core.
 fraction_of_a_core = float_in(lambda v: 0.0 < v <= 1.0, "a fraction of one core in (0, 1]")
@@ -35,27 +48,55 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 2
-        from ..bench.daemon import CpuQuotaError, print_daemon_bench, run_daemon_bench
+        from ..bench.daemon import (
+            CpuQuotaError,
+            RigBench,
+            print_daemon_bench,
+            print_rig_scaling,
+            run_daemon_bench,
+        )
 
         # The --set the daemon will get, checked here: a bad one is this command's
         # "config error", not a RuntimeError traceback carrying the daemon's.
-        config_from_args(args)
-        try:
-            result = run_daemon_bench(
-                args.duration, extra_sets=tuple(args.set), cpu_quota=args.cpu_quota
-            )
-        except CpuQuotaError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        except RuntimeError as exc:  # the daemon failed: its first and last words
-            lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-            print(f"error: bench --daemon: {lines[0].rstrip(':')}: {lines[-1]}", file=sys.stderr)
-            return 1
-        print_daemon_bench(result)
+        base = config_from_args(args)
+        rigs: list[RigBench | None] = [None]
+        if args.cameras is not None or args.cpus:
+            allowed = os.sched_getaffinity(0)
+            for cpus in args.cpus or []:
+                if not set(cpus) <= allowed:
+                    print(
+                        f"error: --cpus {','.join(map(str, cpus))}: this process may run on"
+                        f" CPUs {','.join(map(str, sorted(allowed)))} only",
+                        file=sys.stderr,
+                    )
+                    return 2
+            n = args.cameras if args.cameras is not None else 1
+            rigs = [RigBench(n, base, cpus) for cpus in (args.cpus or [None])]
+        results = []
+        for rig in rigs:
+            try:
+                result = run_daemon_bench(
+                    args.duration, extra_sets=tuple(args.set), cpu_quota=args.cpu_quota, rig=rig
+                )
+            except CpuQuotaError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
+            except RuntimeError as exc:  # the daemon failed: its first and last words
+                lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+                print(
+                    f"error: bench --daemon: {lines[0].rstrip(':')}: {lines[-1]}", file=sys.stderr
+                )
+                return 1
+            print_daemon_bench(result)
+            results.append(result)
+        if len(results) > 1:
+            print_rig_scaling(results)
         return 0
-    if args.cpu_quota is not None:
-        print("error: --cpu-quota goes with --daemon", file=sys.stderr)
-        return 2
+    for given, name in ((args.cpu_quota, "--cpu-quota"), (args.cameras, "--cameras"),
+                        (args.cpus, "--cpus")):  # fmt: skip
+        if given is not None:
+            print(f"error: {name} goes with --daemon", file=sys.stderr)
+            return 2
     from ..bench.pipeline import run_bench
 
     config = config_from_args(args)
@@ -111,5 +152,21 @@ def add_parsers(sub: Any) -> None:
         metavar="F",
         help="--daemon: limit the daemon to this fraction of one core (0 < F <= 1; e.g."
         " 0.25, a slow companion computer) with a cgroup CPU quota (needs root)",
+    )
+    p.add_argument(
+        "--cameras",
+        type=whole_number(1, 16),
+        metavar="N",
+        help="--daemon: a rig of N cameras (1 to 16), each reading the rendered frames at 25"
+        " Hz; per camera fps and latency, CPU per process, the issue's targets",
+    )
+    p.add_argument(
+        "--cpus",
+        type=cpu_list,
+        action="append",
+        metavar="LIST",
+        help="--daemon: pin the daemon and its workers to these CPUs (e.g. 0 or 0,1; the"
+        " mock autopilot is not pinned); given several times, one run each and the frames"
+        " per second compared",
     )
     p.set_defaults(func=cmd_bench)

@@ -48,6 +48,8 @@ def camera_summaries(summary: Any) -> list[dict[str, Any]]:
     rejected, processed (sent), read errors."""
     names = getattr(summary, "camera_names", []) or list(summary.camera_stats)
     processed = getattr(summary, "processed_per_camera", []) or [None] * len(names)
+    # The Companion's view of each camera (frames dropped, latencies), where given.
+    per_camera = getattr(summary, "per_camera", {})
     return [
         {
             "name": name,
@@ -56,6 +58,7 @@ def camera_summaries(summary: Any) -> list[dict[str, Any]]:
             "rejected": s.rejected_empty + s.rejected_size,
             "processed": n,
             "read_errors": s.read_errors,
+            **{k: v for k, v in per_camera.get(name, {}).items() if k != "processed"},
         }
         for name, s, n in zip(names, summary.camera_stats.values(), processed, strict=False)
     ]
@@ -94,6 +97,8 @@ def write_summary_json(
         "box_feed": getattr(summary, "box_feed", {}),
         "cameras": camera_summaries(summary),
         "link": getattr(summary, "link", {}),
+        "workers": getattr(summary, "workers", {}),
+        "dropped_at_stop": getattr(summary, "dropped_at_stop", 0),
         "stages_ms": {
             k: {
                 "p50": float(np.percentile(v, 50)) if v else None,

@@ -29,6 +29,14 @@ The surface::
     comp.frame_sent(output, sent_mono_us)                           # the bytes went out
     when = comp.next_deadline_us()                                  # call process_due then
 
+With several cameras the daemon runs the pipelines in worker processes
+(:mod:`.workers`): after ``comp.offload_steps()``, ``process_due`` hands out a
+:class:`~.outputs.StepRequested` (the frame and the telemetry its pipeline reads) for each
+camera whose worker is idle instead of running the pipeline, and the driver gives each
+result back with ``outputs = comp.on_step_done(camera_id, result, error_name, now_mono_us)``
+(``worker_ready`` / ``worker_lost`` say when a worker can take frames). Everything after
+the step is the same code either way (``_finish``).
+
 After each ``process_due`` a driver handles the outputs in order (a processed frame's
 result is logged *before* its bytes are written: replay relies on that order), then
 writes ``data_to_send()`` and reports the write time of each processed frame with
@@ -120,7 +128,7 @@ from .health import (
 )
 from .inputs import Inputs, InputSpec
 from .live_boxes import MAX_FRAMES_WAITING_FOR_BOXES, LiveBoxes
-from .outputs import FrameProcessed, HealthChecked, Output, ParamsChanged
+from .outputs import FrameProcessed, HealthChecked, Output, ParamsChanged, StepRequested
 from .slots import CameraSlots, FrameSlot
 from .timesync_clock import TimesyncClock
 
@@ -243,6 +251,7 @@ class Companion:
         self._log_behind = 0  # items the log has lost so far (frames and messages)
         self._log_frames_lost = 0
         self._log_behind_reported = 0
+        self._offload = False  # offload_steps: the pipelines run in the driver's workers
 
     def _new_pipeline(self, model: CameraModel) -> Pipeline:
         return Pipeline(
@@ -274,7 +283,7 @@ class Companion:
         ]
         keep = keep[-(MAX_FRAMES_WAITING_FOR_BOXES - 1) :]
         for _ in range(len(cam.pending) - len(keep)):
-            self._drop(now_mono_us)
+            self._drop(now_mono_us, cam)
         # A frame the attitude does not cover yet waits (bounded) for the next sample.
         waits = self.frame_deadline_us(camera_id, capture_mono_us) is not None
         slot = FrameSlot(image, int(capture_mono_us), int(now_mono_us), waits)
@@ -372,7 +381,7 @@ class Companion:
         the end of a frame's wait for the attitude."""
         due = min(self.endpoint.next_deadline_us(), self._next_health_mono_us)
         for cam in self.cameras:
-            if cam.pending:
+            if cam.pending and self._can_step(cam):
                 due = min(due, self._slot_due_us(cam, cam.pending[0]))
         return due
 
@@ -396,12 +405,20 @@ class Companion:
         ready = [
             c
             for c in self.cameras
-            if c.pending and self._slot_due_us(c, c.pending[0]) <= now_mono_us
+            if c.pending and self._can_step(c) and self._slot_due_us(c, c.pending[0]) <= now_mono_us
         ]
-        if ready:
+        if self._offload:  # every idle worker gets its camera's frame, oldest first
+            ready.sort(key=lambda c: (c.pending[0].capture_mono_us, c.camera_id))
+            out.extend(self._request(cam, now_mono_us) for cam in ready)
+        elif ready:
             cam = min(ready, key=lambda c: (c.pending[0].capture_mono_us, c.camera_id))
             out.append(self._process(cam, now_mono_us))
         return out
+
+    def _can_step(self, cam: CameraSlots) -> bool:
+        """Whether camera ``cam``'s next frame can be processed now (in-process: always;
+        offloaded: its worker is up and idle)."""
+        return not self._offload or (cam.worker_up and cam.in_flight is None)
 
     def data_to_send(self) -> bytes:
         """The MAVLink bytes queued for the autopilot since the last call."""
@@ -422,9 +439,13 @@ class Companion:
         n = 0
         for cam in self.cameras:
             for _ in cam.pending:
-                self._drop(now_mono_us)
+                self._drop(now_mono_us, cam)
                 n += 1
             cam.pending = []
+            if cam.in_flight is not None:  # its worker's result will not be waited for
+                cam.in_flight = None
+                self._drop(now_mono_us, cam)
+                n += 1
         return n
 
     # -- frames ----------------------------------------------------------------------------
@@ -447,8 +468,9 @@ class Companion:
         boxes = self.boxes.deadline_us(cam.camera_id, slot.capture_mono_us)
         return due if boxes is None else max(due, boxes)
 
-    def _drop(self, now_mono_us: int) -> None:
+    def _drop(self, now_mono_us: int, cam: CameraSlots) -> None:
         self.stats.frames_dropped += 1
+        cam.frames_dropped += 1
         self._last_drop_mono_us = now_mono_us
 
     def _dropped_recently(self, now_mono_us: int) -> bool:
@@ -473,32 +495,135 @@ class Companion:
         try:
             result = cam.pipeline.step(image, capture_mono_us)
         except Exception as exc:  # one bad frame must not stop the service
-            self.stats.frames_failed += 1
-            self.stats.faults["pipeline exception"] += 1
-            cam.consecutive_errors += 1
             log.exception("pipeline failed on %s frame at %d us", cam.name, capture_mono_us)
-            self.endpoint.statustext(
-                d.MAV_SEVERITY_ERROR, f"TCM: pipeline error {type(exc).__name__}", now_mono_us
-            )
-            if cam.consecutive_errors >= self.config.rebuild_after_errors:
-                self._rebuild(cam)
-                self.endpoint.statustext(
-                    d.MAV_SEVERITY_WARNING, "TCM: pipeline restarted", now_mono_us
-                )
+            self._step_failed(cam, type(exc).__name__, now_mono_us)
             return None
         cam.consecutive_errors = 0
         return result
 
+    def _step_failed(self, cam: CameraSlots, error_name: str, now_mono_us: int) -> None:
+        """Camera ``cam``'s step raised ``error_name``: counted, reported, and after
+        ``rebuild_after_errors`` in a row the pipeline is rebuilt."""
+        self.stats.frames_failed += 1
+        self.stats.faults["pipeline exception"] += 1
+        cam.consecutive_errors += 1
+        self.endpoint.statustext(
+            d.MAV_SEVERITY_ERROR, f"TCM: pipeline error {error_name}", now_mono_us
+        )
+        if cam.consecutive_errors >= self.config.rebuild_after_errors:
+            self._rebuild(cam)
+            self.endpoint.statustext(d.MAV_SEVERITY_WARNING, "TCM: pipeline restarted", now_mono_us)
+
+    # -- offloaded steps (the daemon's worker processes) ------------------------------------
+    def offload_steps(self, enabled: bool = True) -> None:
+        """From now on (``enabled``), :meth:`process_due` does not run the pipelines: it
+        hands out a :class:`StepRequested` for every camera whose worker is idle and whose
+        frame is due, and the driver gives each result back with :meth:`on_step_done`.
+        One frame per camera is with its worker at a time; a newer frame replaces a
+        waiting one as ever (dropped, counted). The default (in-process steps) is what
+        the virtual-time SITL, replay and the tests run. Not with the live box feed (its
+        boxes go to the pipelines in this process)."""
+        if enabled and self.box_feed:
+            raise ValueError("steps cannot be offloaded with a live box feed")
+        self._offload = enabled
+        for cam in self.cameras:  # until each worker is ready (worker_ready)
+            cam.worker_up = not enabled
+
+    @property
+    def steps_offloaded(self) -> bool:
+        return self._offload
+
+    def _request(self, cam: CameraSlots, now_mono_us: int) -> StepRequested:
+        """Camera ``cam``'s next frame to its worker, with the telemetry its pipeline
+        would have read from the shared buffer now."""
+        slot = cam.pending.pop(0)
+        slot.requested_mono_us = now_mono_us
+        slot.clock_offset_us = self.clock_offset_us()
+        cam.in_flight = slot
+        R = self.telemetry.attitude_at(slot.capture_mono_us)
+        pos = self.telemetry.position_at(slot.capture_mono_us)
+        return StepRequested(
+            cam.camera_id,
+            slot.image,
+            slot.capture_mono_us,
+            R,
+            None if pos is None else pos[0],
+            None if pos is None else pos[1],
+            now_mono_us,
+            cam.generation,
+            self.pipeline_config,
+        )
+
+    def on_step_done(
+        self, camera_id: int, result: FrameResult | None, error_name: str, now_mono_us: int
+    ) -> list[FrameProcessed]:
+        """Camera ``camera_id``'s worker finished the frame it was given at
+        ``now_mono_us``: ``result``, or None and the exception's name ``error_name``
+        (counted and reported as an in-process step's would be). Returns the
+        :class:`FrameProcessed` (none for a result nobody waits for)."""
+        cam = self.cameras[camera_id]
+        slot = cam.in_flight
+        if slot is None:
+            return []
+        cam.in_flight = None
+        if result is None:
+            self._step_failed(cam, error_name or "unknown error", now_mono_us)
+        else:
+            cam.consecutive_errors = 0
+        return [self._finish(cam, slot, result, now_mono_us)]
+
+    def worker_lost(self, camera_id: int, why: str, now_mono_us: int) -> None:
+        """Camera ``camera_id``'s worker process is gone (``why``): a fault of that camera,
+        counted and announced; its last objects go out once more as ``unknown``, the frame
+        it had is failed, and the camera's frames are dropped until
+        :meth:`worker_ready`."""
+        cam = self.cameras[camera_id]
+        cam.worker_up = False
+        self.stats.faults[f"{cam.name} worker lost"] += 1
+        problem = f"{cam.name} worker lost ({why})"
+        self.endpoint.statustext(d.MAV_SEVERITY_WARNING, f"TCM: {problem}", now_mono_us)
+        if cam.in_flight is not None:
+            cam.in_flight = None
+            self.stats.frames_failed += 1
+        self._rig_camera_lost(cam)
+        self._objects_unknown(cam, problem, now_mono_us)
+
+    def worker_ready(self, camera_id: int, now_mono_us: int) -> None:
+        """Camera ``camera_id``'s worker (re)started and takes frames."""
+        cam = self.cameras[camera_id]
+        if not cam.worker_up:
+            self.endpoint.statustext(
+                d.MAV_SEVERITY_INFO, f"TCM: {cam.name} worker restarted", now_mono_us
+            )
+        cam.worker_up = True
+
+    def _objects_unknown(self, cam: CameraSlots, problem: str, now_mono_us: int) -> None:
+        """Tell the autopilot once that what camera ``cam`` last reported is no longer known
+        (``problem``). Stamped now: "as of now these are unknown" (the last frame is too
+        old for the autopilot to accept, which is the point of saying it)."""
+        if not cam.last_objects:
+            return
+        stale = FrameResult(-1, now_mono_us, cam.last_objects, False, None, {})
+        self.endpoint.send_frame(mark_unknown(stale, problem), now_mono_us, cam.camera_id)
+        cam.last_objects = ()
+
     def _process(self, cam: CameraSlots, now_mono_us: int) -> FrameProcessed:
         slot = cam.pending.pop(0)
+        slot.boxes_used_before = self.boxes.boxes_used(cam.camera_id)
+        result: FrameResult | None = self._step(cam, slot.image, slot.capture_mono_us, now_mono_us)
+        return self._finish(cam, slot, result, now_mono_us)
+
+    def _finish(
+        self, cam: CameraSlots, slot: FrameSlot, result: FrameResult | None, now_mono_us: int
+    ) -> FrameProcessed:
+        """Everything after camera ``cam``'s step on ``slot`` (``result`` None: it failed):
+        the input override, what is sent, the counters, the output for the driver."""
         if slot.waited:
             self.stats.frames_waited += 1
-        used_before = self.boxes.boxes_used(cam.camera_id)
-        result: FrameResult | None = self._step(cam, slot.image, slot.capture_mono_us, now_mono_us)
         result = self._fused(cam, result, now_mono_us)
         cam.last_processed_capture_mono_us = slot.capture_mono_us
-        self.boxes.frame_processed(cam.camera_id, slot.waited_for_boxes, used_before)
-        offset = self.clock_offset_us()
+        self.boxes.frame_processed(cam.camera_id, slot.waited_for_boxes, slot.boxes_used_before)
+        offset = self.clock_offset_us() if slot.clock_offset_us is None else slot.clock_offset_us
         self.last_override = ""
         if result is not None:
             reason = self._blocking_input(now_mono_us)
@@ -509,6 +634,7 @@ class Companion:
             cam.last_objects = result.objects
             cam.last_capture_mono_us = slot.capture_mono_us
             self.stats.frames_processed += 1
+            cam.frames_processed += 1
             if not self.endpoint.has_time_base(now_mono_us):
                 # Neither TIMESYNC nor the telemetry has given us the autopilot's boot time
                 # yet: a time_boot_ms of 0 would read as ancient to the autopilot, and
@@ -525,7 +651,7 @@ class Companion:
             result,
             slot.capture_mono_us,
             slot.arrival_mono_us,
-            now_mono_us,
+            now_mono_us if slot.requested_mono_us is None else slot.requested_mono_us,
             slot.waited,
             offset,
             self.last_override,
@@ -599,6 +725,7 @@ class Companion:
         # The shared telemetry keeps the attitude history and clock fit.
         cam.pipeline = self._new_pipeline(cam.model)
         cam.consecutive_errors = 0
+        cam.generation += 1
         self.stats.pipeline_rebuilds += 1
 
     def clock_offset_us(self) -> float:
@@ -694,16 +821,7 @@ class Companion:
                 for cam in cams:
                     if name != BOX_FEED:
                         self._rig_camera_lost(cam)
-                    if not cam.last_objects:
-                        continue
-                    # Tell the autopilot once that what it last heard is no longer known.
-                    # Stamped now: "as of now these are unknown" (the last frame is too
-                    # old for the autopilot to accept, which is the point of saying it).
-                    stale = FrameResult(-1, now_mono_us, cam.last_objects, False, None, {})
-                    self.endpoint.send_frame(
-                        mark_unknown(stale, problem), now_mono_us, cam.camera_id
-                    )
-                    cam.last_objects = ()
+                    self._objects_unknown(cam, problem, now_mono_us)
             else:
                 self.endpoint.statustext(d.MAV_SEVERITY_INFO, f"TCM: {name} OK", now_mono_us)
         if self.box_feed:
@@ -732,7 +850,7 @@ class Companion:
     def health_flags(self, now_mono_us: int) -> int:
         st = self.inputs.status(now_mono_us)
         flags = 0
-        if any(not st[c.name].healthy for c in self.cameras):
+        if any(not st[c.name].healthy or not c.worker_up for c in self.cameras):
             flags |= d.TCM_HEALTH_CAMERA_LOST
         if not st["attitude"].healthy:
             flags |= d.TCM_HEALTH_ATTITUDE_STALE
@@ -771,6 +889,7 @@ class Companion:
     def status_line(self, now_mono_us: int) -> str:
         """One line: objects and states, nearest TTC, fps, latency, drops, problems."""
         problems = [s.problem for s in self.inputs.status(now_mono_us).values() if s.problem]
+        problems += [f"{c.name} worker down" for c in self.cameras if not c.worker_up]
         overload = self.overload_problem(now_mono_us)
         if overload:
             problems.append(overload)

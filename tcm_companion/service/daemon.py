@@ -54,6 +54,8 @@ from .companion import Companion
 from .daemon_config import DaemonConfig
 from .endpoint_setup import MavlinkConfig
 from .host import CameraInput, CompanionHost, DaemonSummary, NotifierLike
+from .outputs import Output, StepRequested
+from .workers import StepDone, WorkerDied, WorkerEvent, WorkerPool, WorkerReady, workers_wanted
 
 if TYPE_CHECKING:
     from ..flightlog.handle import FlightLog
@@ -63,6 +65,7 @@ __all__ = ["CameraInput", "Daemon", "DaemonSummary", "NotifierLike", "ServiceCon
 log = logging.getLogger(__name__)
 
 _LINK_RETRY_US = 100_000  # a closed or failing transport is read again after this
+_WORKERS_READY_S = 60.0  # start-up waits this long at most for the workers' pipelines
 
 
 class ServiceConfig(Protocol):
@@ -144,6 +147,10 @@ class Daemon:
         self._handoff_failures = 0
         self._box_error_logged_us: int | None = None
         self._tasks: list[asyncio.Task[Any]] = []
+        # [daemon] workers: the pipelines in worker processes (service/workers.py).
+        self.pool: WorkerPool | None = None
+        self._worker_events: list[WorkerEvent] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     # -- frames from the camera threads -------------------------------------------------
     def _make_on_frame(self, loop: asyncio.AbstractEventLoop) -> Callable[[Frame], None]:
@@ -175,6 +182,74 @@ class Daemon:
                 log.exception("box feed: a datagram raised (%d so far)", counts["handler error"])
         self._wake.set()  # a frame waiting for these boxes may go now
 
+    # -- worker processes (service/workers.py) ------------------------------------------------
+    def watch(self, fd: int, camera_id: int) -> None:
+        """:class:`~.workers.PipeWatcher`: a worker's pipe, read on the loop."""
+        assert self._loop is not None
+        self._loop.add_reader(fd, self._on_worker_readable, camera_id)
+
+    def unwatch(self, fd: int) -> None:
+        assert self._loop is not None
+        self._loop.remove_reader(fd)
+
+    def _on_worker_readable(self, camera_id: int) -> None:  # on the loop's thread
+        assert self.pool is not None
+        self._worker_events += self.pool.receive(camera_id, self.clock.now_us())
+        self._wake.set()
+
+    def _worker_outputs(self, now_mono_us: int) -> list[Output]:
+        """What the workers said since the last turn, given to the Companion."""
+        comp, pool = self.companion, self.pool
+        if pool is None:
+            return []
+        assert comp is not None
+        out: list[Output] = []
+        events, self._worker_events = self._worker_events, []
+        for ev in events:
+            if isinstance(ev, StepDone):
+                if ev.error:
+                    log.error("pipeline failed in worker %d: %s", ev.camera_id, ev.detail)
+                out += comp.on_step_done(ev.camera_id, ev.result, ev.error, now_mono_us)
+            elif isinstance(ev, WorkerReady):
+                comp.worker_ready(ev.camera_id, now_mono_us)
+            elif isinstance(ev, WorkerDied):
+                comp.worker_lost(ev.camera_id, ev.why, now_mono_us)
+        pool.kill_stuck(now_mono_us)
+        pool.restart_due(now_mono_us)
+        return out
+
+    def _submit(self, outputs: list[Output], now_mono_us: int) -> list[Output]:
+        """The turn's step requests to the workers; a worker that cannot take its frame
+        (its death not read yet) fails it."""
+        comp, pool = self.companion, self.pool
+        more: list[Output] = []
+        for out in outputs:
+            if isinstance(out, StepRequested):
+                assert comp is not None and pool is not None
+                if not pool.submit(out):
+                    more += comp.on_step_done(
+                        out.camera_id, None, "worker unavailable", now_mono_us
+                    )
+        return more
+
+    async def _start_workers(self) -> None:
+        """Start the workers and wait (bounded) until each has built its pipeline."""
+        comp, pool = self.companion, self.pool
+        assert comp is not None and pool is not None
+        comp.offload_steps()
+        pool.start(self.clock.now_us())
+        deadline = self.clock.now_us() + round(_WORKERS_READY_S * 1e6)
+        while not all(c.worker_up for c in comp.cameras) and self.clock.now_us() < deadline:
+            self._wake.clear()
+            self._worker_outputs(self.clock.now_us())
+            if all(c.worker_up for c in comp.cameras):
+                break
+            await self.clock.wait_until(self._wake, min(deadline, self.clock.now_us() + 100_000))
+        slow = [c.name for c in comp.cameras if not c.worker_up]
+        if slow:
+            log.error("workers not ready after %.0f s: %s", _WORKERS_READY_S, ", ".join(slow))
+        log.info("worker processes: %s", pool.pids())
+
     # -- tasks -------------------------------------------------------------------------------
     async def _link_reader(self, transport: Transport) -> None:
         host = self.host
@@ -203,7 +278,9 @@ class Daemon:
         host, clock = self.host, self.clock
         assert host is not None
         now = clock.now_us()
-        outputs = host.process_due(now)
+        outputs = self._worker_outputs(now)
+        outputs += host.process_due(now)
+        outputs += self._submit(outputs, now)
         done = clock.now_us()
         data = host.take_bytes()
         await self._write(transport, data)
@@ -216,6 +293,10 @@ class Daemon:
             self._wake.clear()
             await self._turn(transport)
             deadline = comp.next_deadline_us()
+            if self.pool is not None:
+                restart = self.pool.next_restart_us()
+                if restart is not None:
+                    deadline = min(deadline, restart)
             if deadline <= self.clock.now_us():
                 await asyncio.sleep(0)  # let the camera threads' frames and the link in
                 continue
@@ -237,6 +318,7 @@ class Daemon:
 
         stop = stop if stop is not None else asyncio.Event()
         loop = asyncio.get_running_loop()
+        self._loop = loop
         clock = self.clock
         t0 = clock.now_us()
         if self.config.daemon.opencv_threads:
@@ -271,6 +353,21 @@ class Daemon:
                 loop_healthy=self._loop_healthy,
             )
             notifier = self.host.notifier
+
+            # [daemon] workers: a worker process per camera (service/workers.py), stopped
+            # (and its shared memory unlinked) after the cameras on the way out.
+            n_cams = len(self.camera_inputs)
+            if workers_wanted(self.config.daemon.workers, n_cams) and not self.companion.box_feed:
+                self.pool = WorkerPool(
+                    [c.model for c in self.camera_inputs],
+                    [c.name for c in self.camera_inputs],
+                    self.companion.pipeline_config,
+                    detector_model=read_detector_model(self.config.pipeline.detection),
+                    opencv_threads=self.config.daemon.opencv_threads,
+                    watcher=self,
+                )
+                stack.callback(self.pool.stop)
+                await self._start_workers()
 
             # The live box feed: a UDP socket on the loop, closed on the way out.
             feed_url = self.config.daemon.box_feed
@@ -322,12 +419,12 @@ class Daemon:
                 for _ in range(3):
                     await asyncio.sleep(0)
                 now = clock.now_us()
-                self.companion.discard_pending(now)
+                at_stop = self.companion.discard_pending(now)
                 await self._write(transport, self.host.bytes_to_send(now))
         # One camera's stats under its source's name ("/dev/video0"); a rig's under each
         # camera's name (unique; two sources may share a name, "frames").
         rig = len(self.readers) > 1
-        return self.host.summary(
+        summary = self.host.summary(
             (clock.now_us() - t0) / 1e6,
             {
                 self.camera_inputs[r.camera_id].name if rig else r.source.name: r.stats
@@ -335,3 +432,13 @@ class Daemon:
             },
             self._handoff_failures,
         )
+        summary.dropped_at_stop = at_stop
+        if self.pool is not None:
+            st = self.pool.stats
+            summary.workers = {
+                "started": st.started,
+                "restarts": st.restarts,
+                "deaths": dict(st.deaths),
+                "frames_by_pipe": st.frames_by_pipe,
+            }
+        return summary

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Literal
 
 from .box_feed import parse_feed_url
 
@@ -79,18 +80,26 @@ class DaemonConfig:
     box_tracking: bool = False
     box_tracking_camera: int = 0
     box_tracking_latency_us: int = 50_000
+    # The pipelines in worker processes, one per camera (service/workers.py): "auto"
+    # when there are two cameras or more and two CPUs or more in the affinity mask; 0
+    # never (in-process); 1 always. Not with a live box feed (in-process then).
+    workers: Literal["auto"] | int = "auto"
 
     def __post_init__(self) -> None:
         # The sign of each number (the loader checks the whole range, RANGES, first).
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if not isinstance(value, int) or isinstance(value, bool):
-                continue
+            if not isinstance(value, int) or isinstance(value, bool) or f.name == "workers":
+                continue  # workers: "auto", 0 or 1 (below)
             if f.name in MAY_BE_ZERO:
                 if value < 0:
                     raise ValueError(f"{f.name} must be >= 0, got {value}")
             elif value <= 0:
                 raise ValueError(f"{f.name} must be > 0, got {value}")
+        if self.workers != "auto" and (
+            isinstance(self.workers, bool) or self.workers not in (0, 1)
+        ):
+            raise ValueError(f'workers must be "auto", 0 or 1, got {self.workers!r}')
         try:
             parse_feed_url(self.box_feed)
         except ValueError as exc:

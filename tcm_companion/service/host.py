@@ -70,6 +70,8 @@ class NoNotifier:
 
 
 STAT_SAMPLES = 200_000
+#: Per camera, the newest latencies kept for the run's summary (13 min at 25 Hz).
+CAMERA_STAT_SAMPLES = 20_000
 
 
 class SampleRing:
@@ -150,6 +152,11 @@ class DaemonSummary:
     # in the same order).
     camera_names: list[str] = field(default_factory=list)
     processed_per_camera: list[int] = field(default_factory=list)
+    # Per camera (by name): processed, dropped, latency_p50_ms, latency_p99_ms.
+    per_camera: dict[str, dict[str, float]] = field(default_factory=dict)
+    # The worker processes' counters (service/workers.py; empty: in-process).
+    workers: dict[str, Any] = field(default_factory=dict)
+    dropped_at_stop: int = 0  # of ``dropped``: still waiting (or with a worker) at the stop
 
     @property
     def frames_balance(self) -> bool:
@@ -215,6 +222,7 @@ class CompanionHost:
         self.stage_ms: dict[str, SampleRing] = {
             k: SampleRing(STAT_SAMPLES) for k in ("handoff", "queue", "pipeline", "send")
         }
+        self.camera_latencies_ms = [SampleRing(CAMERA_STAT_SAMPLES) for _ in self.cameras]
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
         self.health_checks = 0
@@ -319,6 +327,7 @@ class CompanionHost:
             latency_ms = self.companion.frame_sent(out, sent_mono_us)
             if latency_ms is not None:
                 self.latencies_ms.append(latency_ms)
+                self.camera_latencies_ms[out.camera_id].append(latency_ms)
             st = self.stage_ms
             st["handoff"].append((out.arrival_mono_us - out.capture_mono_us) / 1000.0)
             st["queue"].append((out.process_mono_us - out.arrival_mono_us) / 1000.0)
@@ -423,6 +432,15 @@ class CompanionHost:
         the Companion (the loop was closing), counted as dropped."""
         comp = self.companion
         captured = sum(s.captured for s in camera_stats.values())
+        per_camera: dict[str, dict[str, float]] = {}
+        for cam, lat in zip(comp.cameras, self.camera_latencies_ms, strict=True):
+            values = lat.tolist()
+            per_camera[cam.name] = {
+                "processed": cam.frames_processed,
+                "dropped": cam.frames_dropped,
+                "latency_p50_ms": latency_percentile_ms(values, 50),
+                "latency_p99_ms": latency_percentile_ms(values, 99),
+            }
         rejected = sum(s.rejected_empty + s.rejected_size for s in camera_stats.values())
         return DaemonSummary(
             duration_s=duration_s,
@@ -443,4 +461,5 @@ class CompanionHost:
             link=comp.link_counts(),
             camera_names=[c.name for c in self.cameras],
             processed_per_camera=[self.processed_by_camera[i] for i in range(len(self.cameras))],
+            per_camera=per_camera,
         )

@@ -1,11 +1,14 @@
 """What the :class:`~.companion.Companion` hands its driver after each call: a processed
-frame, the once-a-second health check, a parameter a ground station set."""
+frame, the once-a-second health check, a parameter a ground station set, and (when its
+steps are offloaded to worker processes) a frame to step."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..core.pipeline import FrameResult
+import numpy as np
+
+from ..core.pipeline import FrameResult, PipelineConfig
 from ..mavlink.endpoint import HealthReport
 
 
@@ -50,4 +53,27 @@ class ParamsChanged:
     now_mono_us: int
 
 
-Output = FrameProcessed | HealthChecked | ParamsChanged
+@dataclass(frozen=True, eq=False)
+class StepRequested:
+    """Offloaded steps (:meth:`Companion.offload_steps`): run camera ``camera_id``'s
+    pipeline on ``image`` captured at ``capture_mono_us`` and hand the result to
+    :meth:`Companion.on_step_done`.
+
+    The telemetry the pipeline would read from the shared buffer at the capture time
+    comes with it, computed by the Companion when it asked: ``R_ned_from_body`` (None: no
+    attitude covers the frame) and ``pos_ned_m``/``vel_ned_mps`` (None: no position).
+    ``generation`` counts the camera's pipeline rebuilds: a worker whose pipeline is of
+    an older generation builds a new one from ``pipeline_config`` first."""
+
+    camera_id: int
+    image: np.ndarray
+    capture_mono_us: int
+    R_ned_from_body: np.ndarray | None
+    pos_ned_m: np.ndarray | None
+    vel_ned_mps: np.ndarray | None
+    requested_mono_us: int
+    generation: int
+    pipeline_config: PipelineConfig
+
+
+Output = FrameProcessed | HealthChecked | ParamsChanged | StepRequested

@@ -20,6 +20,11 @@ class FrameSlot:
     arrival_mono_us: int
     waited: bool = False
     waited_for_boxes: bool = False
+    boxes_used_before: int = 0  # the live box feed's count before the step
+    # Offloaded steps (Companion.offload_steps): when the step was requested and the
+    # clock offset its attitude was computed with (None: processed in-process).
+    requested_mono_us: int | None = None
+    clock_offset_us: float | None = None
 
 
 @dataclass
@@ -38,3 +43,11 @@ class CameraSlots:
     last_capture_mono_us: int | None = None
     last_processed_capture_mono_us: int | None = None  # whatever its result
     consecutive_errors: int = 0
+    frames_processed: int = 0  # this camera's share of the Companion's counts
+    frames_dropped: int = 0
+    # Offloaded steps only: the frame a worker is processing (one at a time), whether
+    # the worker can take one, and the pipeline's generation (bumped on each rebuild:
+    # the worker rebuilds its own pipeline when the generation it has is older).
+    in_flight: FrameSlot | None = None
+    worker_up: bool = True
+    generation: int = 0

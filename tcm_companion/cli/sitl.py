@@ -20,7 +20,7 @@ import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from ..sim.scene.names import SCENARIO_NAMES
+from ..sim.scene.names import RIGS, SCENARIO_NAMES
 from .common import (
     add_command,
     add_config_arguments,
@@ -75,9 +75,17 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         check_outputs(run_inputs(args, config), args.log, None, "--log")
     signals = RunSignals()
     if args.clock == "virtual":
-        return _run_sitl_virtual(config, args.duration, printer, signals, args.log, min_accuracy)
+        return _run_sitl_virtual(
+            config, args.duration, printer, signals, args.log, min_accuracy, args.rig
+        )
     return run_sitl_until(
-        config, args.duration, printer, signals, log_dir=args.log, min_accuracy=min_accuracy
+        config,
+        args.duration,
+        printer,
+        signals,
+        log_dir=args.log,
+        min_accuracy=min_accuracy,
+        rig=args.rig,
     )
 
 
@@ -113,6 +121,7 @@ def _run_sitl_virtual(
     signals: RunSignals,
     log_dir: str | None,
     min_accuracy: float | None,
+    rig: str = "panorama",
 ) -> int:
     """``sitl --clock virtual``: no event loop; SIGINT/SIGTERM end the simulation early."""
     from ..sitl.mock_flight import run_sitl_virtual
@@ -121,7 +130,8 @@ def _run_sitl_virtual(
     with printer as on_status, signals.installed(stop.set):
         report = run_sitl_virtual(
             config,
-            camera_model=config.camera.model,
+            camera_model=config.camera.model if rig == "panorama" else None,
+            rig=rig,
             duration_s=duration_s,
             should_stop=stop.is_set,
             on_status=on_status,
@@ -176,9 +186,11 @@ def run_sitl_until(
     async def main(on_status: StatusPrinter | None, stop: asyncio.Event) -> SitlReport:
         from ..sitl.mock_flight import run_sitl
 
+        rig = kwargs.pop("rig", "panorama")
         return await run_sitl(
             config,
-            camera_model=config.camera.model,
+            camera_model=config.camera.model if rig == "panorama" else None,
+            rig=rig,
             duration_s=duration_s,
             stop=stop,
             on_status=on_status,
@@ -249,6 +261,14 @@ def add_parsers(sub: Any) -> None:
         metavar="PCT",
         help="mock: fail (exit 1) when the accuracy of the decided object-frames after the"
         " warm-up is below this, or nothing was decided (default 90; 0: not judged)",
+    )
+    p.add_argument(
+        "--rig",
+        choices=RIGS,
+        default="panorama",
+        help="the simulated cameras: panorama (default, one 360° camera), quad (front,"
+        " right, rear, left: four 100° pinholes) or front-back; the daemon runs one camera"
+        " per rig camera, each rendered from the vehicle's pose",
     )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")

@@ -9,6 +9,7 @@ right-forward (yaw +45°), which covers both the side and straight ahead.
 from __future__ import annotations
 
 from ...core.camera import CameraModel, Equirectangular, Fisheye, Pinhole
+from .names import RIGS as _RIGS
 
 PRESETS = ("panorama", "pinhole", "fisheye")
 
@@ -54,7 +55,7 @@ def preset_camera(
 
 #: The simulator's camera rigs (``--rig``): several cameras on one vehicle, each a
 #: ``(name, lens)``. ``panorama`` is the paper's single 360° camera (the default).
-RIGS = ("panorama", "quad", "front-back")
+RIGS = _RIGS
 
 #: A rig pinhole: 320×240 over 100° horizontally (fx = 160 / tan 50°), level, no
 #: distortion; ``quad`` puts four at 0/90/180/270° (10° overlap between neighbours),

@@ -91,6 +91,10 @@ class PipelineConfig:
     bsm_enabled: bool = False  # BSM costs a whole-frame warp; on for method "bsm" or eval
     # Undo the attitude error between two frames that vision egomotion measured.
     egomotion_rotation_correction: bool = True
+    # Compute the default interval's translation at every frame, even when no track's
+    # pair needed it (FrameResult.translation): a camera rig decides a young track that
+    # continues another camera's object with it (core.rig). Off for one camera.
+    always_translate: bool = False
 
 
 @dataclass(frozen=True)
@@ -284,6 +288,10 @@ class Pipeline:
         end = self._frame_near(frame_time_us - self._fit_half_us) if self._fit_half_us else None
         end_index, end_us = (index, frame_time_us) if end is None else (end.index, end.t_us)
         default_ref = self._frame_near(end_us - round(self.config.classifier.interval_s * 1e6))
+        if self.config.always_translate and default_ref is not None:
+            key = (default_ref.index, end_index)
+            if key not in cache and default_ref.index != end_index:
+                cache[key] = self._translation(*key)
         return FrameResult(
             index,
             frame_time_us,

@@ -75,6 +75,7 @@ Policies that live here:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
@@ -85,6 +86,7 @@ import numpy as np
 from ..core.camera import CameraModel
 from ..core.egomotion import TranslationEstimate
 from ..core.pipeline import FrameResult, ObjectResult, Pipeline, PipelineConfig
+from ..core.rig import RigTracker
 from ..core.telemetry import AttitudeSample, PositionSample, TelemetryBuffer
 from ..mavlink import tcm_dialect as d
 from ..mavlink.endpoint import (
@@ -162,6 +164,10 @@ class Companion:
             raise ValueError(f"camera rates must be positive frames per second, got {rates}")
         self.config = config
         self.endpoint = endpoint
+        if len(cameras) >= 2:
+            # A rig: every camera's translation at every frame, for the cross-camera pairs
+            # of core.rig (one camera stays exactly as it was).
+            pipeline_config = dataclasses.replace(pipeline_config, always_translate=True)
         self.base_pipeline_config = pipeline_config
         # A PARAM_SET whose value passes its own range but cannot be applied with the
         # others (a seed hue range leaving the grow range) is refused by the endpoint,
@@ -190,6 +196,8 @@ class Companion:
         self.cameras = [
             CameraSlots(i, names[i], cam, self._new_pipeline(cam)) for i, cam in enumerate(cameras)
         ]
+        # Two cameras or more: one track per object across the rig (core.rig).
+        self.rig = RigTracker(cameras, self.pipeline_config) if len(cameras) >= 2 else None
         specs = [
             InputSpec(c.name, rate, config.camera_timeout_us)
             for c, rate in zip(self.cameras, rates, strict=True)
@@ -482,6 +490,7 @@ class Companion:
             self.stats.frames_waited += 1
         used_before = self.boxes.boxes_used(cam.camera_id)
         result: FrameResult | None = self._step(cam, slot.image, slot.capture_mono_us, now_mono_us)
+        result = self._fused(cam, result, now_mono_us)
         cam.last_processed_capture_mono_us = slot.capture_mono_us
         self.boxes.frame_processed(cam.camera_id, slot.waited_for_boxes, used_before)
         offset = self.clock_offset_us()
@@ -519,6 +528,15 @@ class Companion:
             float(self.endpoint.params.values["TCM_OBJ_RADIUS"]),
         )
 
+    def _fused(
+        self, cam: CameraSlots, result: FrameResult | None, now_mono_us: int
+    ) -> FrameResult | None:
+        """A rig's camera result as the rig reports it (:meth:`.RigTracker.fuse`: rig-wide
+        ids, objects another camera measures left out); as it is with one camera."""
+        if self.rig is None or result is None:
+            return result
+        return self.rig.fuse(cam.camera_id, result)
+
     def replay_frame(
         self,
         camera_id: int,
@@ -540,6 +558,7 @@ class Companion:
             result = self._step(cam, image, capture_mono_us, process_mono_us)
         finally:
             self.clock.force(None)
+        result = self._fused(cam, result, process_mono_us)
         # What the live box feed's later messages are judged against (late or not).
         cam.last_processed_capture_mono_us = capture_mono_us
         if result is not None and override:

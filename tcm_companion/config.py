@@ -183,14 +183,46 @@ def camera_config_from_table(table: Any, where: str) -> CameraConfig:
     return CameraConfig(model=model, source=source, name=name)
 
 
+#: The most cameras a rig may have (``[[cameras]]`` tables).
+MAX_CAMERAS = 16
+
+
+def _one_camera() -> tuple[CameraConfig, ...]:
+    return (CameraConfig(),)
+
+
 @dataclass(frozen=True)
 class AppConfig:
+    """The whole configuration. ``cameras``: the rig, camera id = index (``[[cameras]]``;
+    a lone ``[camera]`` is a rig of one); :attr:`camera` is ``cameras[0]``."""
+
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     sim: SimConfig = field(default_factory=SimConfig)
-    camera: CameraConfig = field(default_factory=CameraConfig)
+    cameras: tuple[CameraConfig, ...] = field(default_factory=_one_camera)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
+
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.cameras) <= MAX_CAMERAS:
+            raise ValueError(f"cameras: 1 to {MAX_CAMERAS} cameras, got {len(self.cameras)}")
+        names = [c.name for c in self.cameras]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise ValueError(
+                    f"cameras: name {name!r} given twice (cameras {names.index(name)} and {i})"
+                )
+
+    @property
+    def camera(self) -> CameraConfig:
+        """The first camera (id 0): the one camera of a ``[camera]`` configuration."""
+        return self.cameras[0]
+
+    def with_camera(self, camera: CameraConfig, camera_id: int = 0) -> AppConfig:
+        """This configuration with camera ``camera_id`` replaced by ``camera``."""
+        cams = list(self.cameras)
+        cams[camera_id] = camera
+        return dataclasses.replace(self, cameras=tuple(cams))
 
 
 # --------------------------------------------------------------------------------------
@@ -899,7 +931,9 @@ def _pipeline_table(doc: dict[str, Any], where: str) -> dict[str, Any]:
 #: Environment variables ``TCM_COMPANION__TABLE__KEY=value`` override the file
 #: (e.g. ``TCM_COMPANION__MAVLINK__URL=serial:/dev/ttyAMA0:921600``); CLI ``--set
 #: table.key=value`` overrides both. Values are read as TOML (``0.1``, ``true``,
-#: ``[1, 2]``, ``"text"``), and as plain text when they are not valid TOML.
+#: ``[1, 2]``, ``"text"``), and as plain text when they are not valid TOML. A camera of
+#: a rig (``[[cameras]]``) is ``cameras.NAME.key`` (``TCM_COMPANION__CAMERAS__NAME__KEY``,
+#: the name matched without regard to case); ``camera.key`` of a rig is refused.
 ENV_PREFIX = "TCM_COMPANION__"
 
 
@@ -910,8 +944,46 @@ def _toml_value(text: str) -> Any:
         return text
 
 
-def _set_dotted(doc: dict[str, Any], path: list[str], value: Any, origin: str) -> None:
+def _rig_override(doc: dict[str, Any], path: list[str], origin: str) -> list[str]:
+    """``path`` of an override for the rig's ``[[cameras]]``: ``cameras.NAME.KEY`` ->
+    ``["cameras", "<i>", "KEY"]`` (the index of the camera named NAME, case-insensitive
+    for the environment's upper-case names); ``camera.KEY`` of a rig is refused."""
+    cams = doc.get("cameras")
+    names = [t.get("name") for t in cams if isinstance(t, dict)] if isinstance(cams, list) else []
+    shown = ", ".join(str(n) for n in names)
+    if path[0] == "camera":
+        if not isinstance(cams, list):
+            return path
+        raise ConfigError(
+            f"{origin}: this configuration is a rig of [[cameras]] ({shown}): set one"
+            f" camera's key as cameras.NAME.{'.'.join(path[1:])}"
+        )
+    if not isinstance(cams, list):
+        raise ConfigError(
+            f"{origin}: cameras.NAME.KEY sets a camera of [[cameras]], and this configuration"
+            " has none (one camera: set camera.KEY)"
+        )
+    if len(path) < 3:
+        raise ConfigError(f"{origin}: expected cameras.NAME.KEY (cameras: {shown})")
+    matches = [i for i, n in enumerate(names) if n == path[1]] or [
+        i for i, n in enumerate(names) if isinstance(n, str) and n.lower() == path[1].lower()
+    ]
+    if len(matches) != 1:
+        raise ConfigError(f"{origin}: no camera named {path[1]!r} in [[cameras]] ({shown})")
+    return ["cameras", str(matches[0]), *path[2:]]
+
+
+def _set_dotted(doc: dict[str, Any], path: list[str], value: Any, origin: str) -> str:
+    """Set ``path`` of ``doc`` to ``value``; the dotted key set, as errors name it
+    (``cameras.NAME.KEY`` with the camera's name as the file writes it)."""
+    if path[0] in ("camera", "cameras"):
+        path = _rig_override(doc, path, origin)
+    dotted = ".".join(path)
     node = doc
+    if path[0] == "cameras":  # ["cameras", index, key...]: that camera's table
+        node = doc["cameras"][int(path[1])]
+        path = path[2:]
+        dotted = ".".join(["cameras", str(node["name"]), *path])
     for part in path[:-1]:
         child = node.setdefault(part, {})
         if not isinstance(child, dict):
@@ -923,6 +995,7 @@ def _set_dotted(doc: dict[str, Any], path: list[str], value: Any, origin: str) -
         if key.endswith(unit):
             node.pop(f"{key[: -len(unit)]}{other}", None)
     node[key] = value
+    return dotted
 
 
 def apply_overrides(
@@ -942,15 +1015,15 @@ def apply_overrides(
         path = [p.lower() for p in name[len(ENV_PREFIX) :].split("__") if p]
         if len(path) < 2:
             raise ConfigError(f"environment {name}: expected {ENV_PREFIX}TABLE__KEY")
-        _set_dotted(doc, path, _toml_value(raw), f"environment {name}")
-        origins[".".join(path)] = f"environment {name}"
+        dotted = _set_dotted(doc, path, _toml_value(raw), f"environment {name}")
+        origins[dotted] = f"environment {name}"
     for item in sets:
         key, eq, raw = item.partition("=")
         path = [p for p in key.strip().split(".") if p]
         if not eq or len(path) < 2:
             raise ConfigError(f"--set {item!r}: expected TABLE.KEY=VALUE")
-        _set_dotted(doc, path, _toml_value(raw.strip()), f"--set {item}")
-        origins[".".join(path)] = f"--set {key.strip()}"
+        dotted = _set_dotted(doc, path, _toml_value(raw.strip()), f"--set {item}")
+        origins[dotted] = f"--set {key.strip()}"
     return origins
 
 
@@ -1018,7 +1091,7 @@ def _name_origin(exc: ConfigError, origins: dict[str, str]) -> ConfigError:
     return ConfigError(msg, exc.key)
 
 
-_TABLES = ("pipeline", "mavlink", "daemon", "sim", "camera", "logging")
+_TABLES = ("pipeline", "mavlink", "daemon", "sim", "camera", "cameras", "logging")
 
 #: Keys that are no longer settings, and what replaced them. Still accepted, so that an
 #: older config.toml (or a flight log's recorded configuration) loads, but ignored: each
@@ -1090,13 +1163,12 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
             ("logging", LoggingConfig),
         )
     }
-    camera = table(camera_config_from_table, doc.get("camera", {}), f"{where}: [camera]")
+    cameras = _cameras_from_doc(doc, where, errors)
     if tables["mavlink"] is not None:
         errors += _url_errors(tables["mavlink"].url, f"{where}: [mavlink]", "url", "mavlink.url")
     try:
         _raise_all(errors)  # the checks across tables need every table sound
-        # The daemon runs one camera ([camera], index 0).
-        problem = tables["daemon"].feed_problem(pipeline.detection.backend, 1)
+        problem = tables["daemon"].feed_problem(pipeline.detection.backend, len(cameras))
         if problem is not None:
             key, why = problem
             raise ConfigError(f"{where}: [daemon] {why}", f"daemon.{key}")
@@ -1110,7 +1182,83 @@ def config_from_dict(doc: dict[str, Any], where: str = "config") -> AppConfig:
                 msg = msg.replace(f"[pipeline.{name}.", f"[{name}.")
             renamed.append(ConfigError(msg, e.key))
         _raise_all(renamed)
-    return AppConfig(pipeline=pipeline, camera=camera, **tables)
+    return AppConfig(pipeline=pipeline, cameras=cameras, **tables)
+
+
+def _rig_table_at(where: str, index: int, table: Any) -> str:
+    """Where camera ``index`` of ``[[cameras]]`` is, for its errors: ``"c.toml:
+    [cameras.front]"`` by its name (as ``--set cameras.front.fx=…`` names it), or
+    ``"c.toml: [cameras[2]]"`` by position when it has no usable name."""
+    name = table.get("name") if isinstance(table, dict) else None
+    if isinstance(name, str) and name:
+        shown = name if re.fullmatch(r"[A-Za-z0-9_-]+", name) else f'"{name}"'
+        return f"{where}: [cameras.{shown}]"
+    return f"{where}: [cameras[{index}]]"
+
+
+def _cameras_from_doc(
+    doc: dict[str, Any], where: str, errors: list[ConfigError]
+) -> tuple[CameraConfig, ...]:
+    """The rig: ``[[cameras]]`` (each table the keys of ``[camera]``, ``name`` required
+    and unique, at most :data:`MAX_CAMERAS`) or a lone ``[camera]`` (a rig of one).
+    Errors are appended to ``errors`` (the result is then meaningless)."""
+    if "cameras" not in doc:
+        try:
+            return (camera_config_from_table(doc.get("camera", {}), f"{where}: [camera]"),)
+        except ConfigError as exc:
+            errors.append(exc)
+            return _one_camera()
+    if "camera" in doc:
+        errors.append(
+            ConfigError(
+                f"{where}: both [camera] and [[cameras]] given: a rig is [[cameras]] tables"
+                " only (one camera: [camera] alone)"
+            )
+        )
+        return _one_camera()
+    tables = doc["cameras"]
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        errors.append(
+            ConfigError(
+                f"{where}: cameras must be an array of tables ([[cameras]], one per camera)"
+            )
+        )
+        return _one_camera()
+    if not 1 <= len(tables) <= MAX_CAMERAS:
+        errors.append(
+            ConfigError(f"{where}: [[cameras]]: 1 to {MAX_CAMERAS} cameras, got {len(tables)}")
+        )
+        return _one_camera()
+    cams: list[CameraConfig] = []
+    seen: dict[str, int] = {}
+    for i, t in enumerate(tables):
+        at = _rig_table_at(where, i, t)
+        name = t.get("name")
+        if "name" not in t:
+            errors.append(
+                ConfigError(
+                    f"{at} name is required (camera {i} of [[cameras]]: each camera is named)"
+                )
+            )
+        elif isinstance(name, str) and name in seen:
+            j = seen[name]
+            errors.append(
+                ConfigError(
+                    f"{where}: [[cameras]] name = {name!r} given twice (cameras {j} and {i}):"
+                    " camera names must be unique"
+                )
+            )
+        elif isinstance(name, str):
+            seen[name] = i
+        try:
+            cams.append(camera_config_from_table(t, at))
+        except ConfigError as exc:
+            prefix = f"cameras.{name}." if isinstance(name, str) and name else f"cameras.{i}."
+            errors.extend(
+                ConfigError(str(e), prefix + e.key.removeprefix("camera.") if e.key else "")
+                for e in exc.errors
+            )
+    return tuple(cams) if len(cams) == len(tables) else _one_camera()
 
 
 def _url_errors(url: str, where: str, key: str, dotted: str) -> list[ConfigError]:
@@ -1151,7 +1299,8 @@ def config_to_toml(config: AppConfig) -> str:
     import tomli_w
 
     doc = _plain(config)
-    cam = doc.pop("camera")
-    camera = {"name": cam["name"], **cam["model"], **cam["source"]}
-    doc["camera"] = camera
+    cams = [{"name": c["name"], **c["model"], **c["source"]} for c in doc.pop("cameras")]
+    # One camera: [camera] (as before rigs); several: [[cameras]].
+    rig = {"cameras": cams} if len(cams) > 1 else {"camera": cams[0]}
+    doc |= rig
     return tomli_w.dumps(doc)

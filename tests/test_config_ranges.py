@@ -146,15 +146,16 @@ def _numeric_keys(cls: type, prefix: str) -> set[str]:
 
 def reachable_numeric_keys() -> set[str]:
     """Every numeric setting reachable from AppConfig, keyed as config.toml writes it:
-    the pipeline's stages are tables of their own, [camera] holds the lens model's and
-    the source's keys, [camera.front] and [camera.back] their own."""
+    the pipeline's stages are tables of their own, [camera] (and each [[cameras]]) holds
+    the lens model's and the source's keys, [camera.front] and [camera.back] their own."""
     hints = typing.get_type_hints(AppConfig)
     keys: set[str] = set()
     for f in dataclasses.fields(AppConfig):
         tp = hints[f.name]
         if f.name == "pipeline":
             keys |= _numeric_keys(tp, "")
-        elif f.name == "camera":
+        elif f.name == "cameras":  # tuple[CameraConfig, ...]: each camera's keys
+            (tp,) = {a for a in typing.get_args(tp) if a is not Ellipsis}
             camera_hints = typing.get_type_hints(tp)
             for cf in dataclasses.fields(tp):
                 sub = camera_hints[cf.name]

@@ -175,11 +175,10 @@ def test_a_camera_set_to_10_fps_is_expected_at_10(tmp_path: Path) -> None:
     """[camera] fps reaches the simulated camera and the companion's input check: a
     10 Hz camera is not "slow" (it was, against a hard-coded 25 Hz)."""
     config = AppConfig()
-    config = dataclasses.replace(
-        config,
-        camera=dataclasses.replace(
+    config = config.with_camera(
+        dataclasses.replace(
             config.camera, source=dataclasses.replace(config.camera.source, fps=10.0)
-        ),
+        )
     )
     lines: list[str] = []
     report = run_sitl_virtual(

@@ -60,11 +60,11 @@ class LossyCamera(FrameSource):
 def run(scenario: str, fps: float, loss: float, duration_s: float) -> dict[str, Any]:
     config = AppConfig()
     config = dataclasses.replace(
-        config,
-        sim=dataclasses.replace(config.sim, scenario=scenario),
-        camera=dataclasses.replace(
+        config, sim=dataclasses.replace(config.sim, scenario=scenario)
+    ).with_camera(
+        dataclasses.replace(
             config.camera, source=dataclasses.replace(config.camera.source, fps=fps)
-        ),
+        )
     )
     factory = None
     if loss > 0:

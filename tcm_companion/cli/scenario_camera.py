@@ -83,4 +83,4 @@ def camera_from_scenario(config: AppConfig, overrides: dict[str, str]) -> AppCon
         )
     else:
         log.info("camera model: scenario %s declares a %s camera", path, what)
-    return dataclasses.replace(config, camera=dataclasses.replace(config.camera, model=declared))
+    return config.with_camera(dataclasses.replace(config.camera, model=declared))

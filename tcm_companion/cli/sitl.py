@@ -74,9 +74,10 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_outputs(run_inputs(args, config), args.log, None, "--log")
     signals = RunSignals()
+    rig = args.rig or ("config" if len(config.cameras) > 1 else "panorama")
     if args.clock == "virtual":
         return _run_sitl_virtual(
-            config, args.duration, printer, signals, args.log, min_accuracy, args.rig
+            config, args.duration, printer, signals, args.log, min_accuracy, rig
         )
     return run_sitl_until(
         config,
@@ -85,7 +86,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         signals,
         log_dir=args.log,
         min_accuracy=min_accuracy,
-        rig=args.rig,
+        rig=rig,
     )
 
 
@@ -265,10 +266,11 @@ def add_parsers(sub: Any) -> None:
     p.add_argument(
         "--rig",
         choices=RIGS,
-        default="panorama",
-        help="the simulated cameras: panorama (default, one 360° camera), quad (front,"
-        " right, rear, left: four 100° pinholes) or front-back; the daemon runs one camera"
-        " per rig camera, each rendered from the vehicle's pose",
+        default=None,
+        help="the simulated cameras: panorama (one 360° camera), quad (front, right, rear,"
+        " left: four 100° pinholes) or front-back; the daemon runs one camera per rig"
+        " camera, each rendered from the vehicle's pose (default: the configuration's"
+        " [[cameras]] when it has two or more, else [camera])",
     )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")

@@ -52,6 +52,7 @@ from ..core.frames import normalize
 from ..core.pipeline import FrameResult
 from ..flight_log_setup import start_flight_log
 from ..io.aio import monotonic_us
+from ..io.cameras.settings import CameraSourceConfig
 from ..io.detector_model import read_detector_model
 from ..io.scoring import Score, match_truth, warmed_up
 from ..io.transports import Transport, open_transport
@@ -75,6 +76,8 @@ CameraFactory = Callable[..., Any]
 #: A rig camera that dies: ``(camera name, seconds after the start)``; None: none;
 #: ``"scenario"``: the scenario's own (:data:`~tcm_companion.sim.scene.names.CAMERA_LOSS`).
 CameraLoss = tuple[str, float] | None | Literal["scenario"]
+#: ``rig=CONFIG_RIG``: fly the configuration's ``[[cameras]]``, each a simulated camera.
+CONFIG_RIG = "config"
 
 
 @dataclass
@@ -374,29 +377,35 @@ def _sim_camera(
     ``rig`` other than the panorama (:func:`~tcm_companion.sim.scene.cameras.rig_cameras`),
     one camera per rig camera, in rig order, each rendering from the vehicle's true pose
     at its frame times. ``camera_loss``: ``(camera name, s)``: that camera stops
-    delivering ``s`` seconds after ``start_us`` (the clock's µs) and never comes back."""
+    delivering ``s`` seconds after ``start_us`` (the clock's µs) and never comes back.
+    ``rig`` :data:`CONFIG_RIG`: the configuration's ``[[cameras]]`` (names, lenses, frame
+    rates and noise), each simulated."""
     from ..core.camera import Equirectangular
     from ..sim.scene.cameras import rig_cameras
     from ..sim.scene.truth_camera import DyingCamera, SimulatedCamera
 
-    fps = config.camera.source.fps
-    camera_kwargs.setdefault("noise_dn", config.camera.source.sim_noise_dn)
-    camera_kwargs.setdefault("fps", fps)
-    lenses: list[tuple[str, CameraModel, str | None]]
+    # (name, lens, source name or None: the scenario's, settings)
+    lenses: list[tuple[str, CameraModel, str | None, CameraSourceConfig]]
     if rig == "panorama":
-        lenses = [("camera0", model if model is not None else Equirectangular(360, 220), None)]
+        lens0 = model if model is not None else Equirectangular(360, 220)
+        lenses = [("camera0", lens0, None, config.camera.source)]
+    elif model is not None:
+        raise ValueError(f"rig {rig!r} has its own cameras: do not pass camera_model")
+    elif rig == CONFIG_RIG:
+        lenses = [(c.name, c.model, f"sim-{c.name}", c.source) for c in config.cameras]
     else:
-        if model is not None:
-            raise ValueError(f"rig {rig!r} has its own cameras: do not pass camera_model")
-        lenses = [(n, lens, f"sim-{n}") for n, lens in rig_cameras(rig)]
-    names = [n for n, _, _ in lenses]
+        src = config.camera.source
+        lenses = [(n, lens, f"sim-{n}", src) for n, lens in rig_cameras(rig)]
+    names = [n for n, _, _, _ in lenses]
     if camera_loss is not None and camera_loss[0] not in names:
         raise ValueError(
             f"camera {camera_loss[0]!r} cannot die: rig {rig!r} has {', '.join(names)}"
         )
     out = []
-    for name, lens, source_name in lenses:
+    for name, lens, source_name, settings in lenses:
         kwargs = dict(camera_kwargs)
+        kwargs.setdefault("noise_dn", settings.sim_noise_dn)
+        kwargs.setdefault("fps", settings.fps)
         if source_name is not None:
             kwargs["name"] = source_name
         if camera_factory is not None:
@@ -406,7 +415,7 @@ def _sim_camera(
         if camera_loss is not None and camera_loss[0] == name:
             clock_us = camera_kwargs.get("clock_us", monotonic_us)
             source = DyingCamera(source, start_us + round(camera_loss[1] * 1e6), clock_us)
-        out.append(CameraInput(name, lens, source, fps=fps))
+        out.append(CameraInput(name, lens, source, fps=settings.fps))
     return out
 
 

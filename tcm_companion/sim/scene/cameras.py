@@ -59,12 +59,14 @@ RIGS = _RIGS
 
 #: A rig pinhole: 320×240 over 100° horizontally (fx = 160 / tan 50°), level, no
 #: distortion; ``quad`` puts four at 0/90/180/270° (10° overlap between neighbours),
-#: ``front-back`` two at 0 and 180° (the sides 50°..130° unseen at the horizon).
+#: ``front-back`` two at 0 and 180° (the sides 50°..130° unseen at the horizon),
+#: ``front-right`` the quad's first two (a two-camera rig with an overlap, 40°..50°).
 _RIG_HFOV_DEG = 100.0
 _RIG_SIZE = (320, 240)
 _RIG_YAWS_DEG = {
     "quad": (("front", 0.0), ("right", 90.0), ("rear", 180.0), ("left", -90.0)),
     "front-back": (("front", 0.0), ("rear", 180.0)),
+    "front-right": (("front", 0.0), ("right", 90.0)),
 }
 
 

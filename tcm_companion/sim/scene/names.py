@@ -50,7 +50,7 @@ RIG_SCENARIO_NAMES: tuple[str, ...] = ("PASS", "OVERLAP", "CAMLOSS")
 SCENARIO_NAMES: tuple[str, ...] = PAPER_SCENARIO_NAMES + OBJECT_SCENARIO_NAMES + RIG_SCENARIO_NAMES
 
 #: The simulator's camera rigs (``sitl --rig``; :func:`~.cameras.rig_cameras` builds them).
-RIGS: tuple[str, ...] = ("panorama", "quad", "front-back")
+RIGS: tuple[str, ...] = ("panorama", "quad", "front-back", "front-right")
 
 #: Rig scenarios in which a camera of the rig stops delivering: scenario -> (camera name,
 #: seconds after the start of the flight). ``CAMLOSS``: the ``front`` camera (of the

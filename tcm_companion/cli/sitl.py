@@ -163,7 +163,7 @@ def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
     async def main() -> int:
         from ..sitl.ardupilot import run_ardupilot_sitl
 
-        report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode)
+        report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode, rig=args.rig)
         print("\n".join(report.lines()))
         return 0 if report.ok else 1
 

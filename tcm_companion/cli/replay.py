@@ -41,16 +41,19 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     from ..flightlog.reader import LogReport, read_metadata
     from ..io.outputs import RESULTS_CSV, atomic_text
     from ..io.results import ResultsWriter
-    from ..replay.log import ROUNDING_REL_TOL, MissingFrame, compare, replay_log
+    from ..replay.log import ROUNDING_REL_TOL, MissingFrame, compare, log_cameras, replay_log
 
     rows = mismatched = rounding = beyond = frames = after_gap = after_same = 0
     diffs: list[str] = []
     report = LogReport()
     missing: list[MissingFrame] = []
     with atomic_text(args.results, kind=RESULTS_CSV, force=args.force, inputs=_inputs(args)) as fh:
-        writer = ResultsWriter(fh)
+        # A rig's log (two cameras or more) replays the whole rig; its rows say which
+        # camera measured them (the results CSV's camera column).
+        names = log_cameras(args.scenario, args.flight)
+        writer = ResultsWriter(fh, names if len(names) >= 2 else None)
         for frame in replay_log(args.scenario, args.camera_id, report, args.flight, missing):
-            writer.write(frame.result)
+            writer.write(frame.result, frame.camera_id)
             frames += 1
             d = compare(frame)
             if frame.after_gap:  # not comparable: its pipeline lacked a frame the flight's had
@@ -124,7 +127,8 @@ def cmd_replay_log(args: argparse.Namespace) -> int:
     if problems:
         failed.append("the log is not whole (see the warnings above)")
     if not frames:
-        failed.append(f"no processed frame of camera {args.camera_id} to compare")
+        which = "" if args.camera_id is None else f" of camera {args.camera_id}"
+        failed.append(f"no processed frame{which} to compare")
     elif not compared:
         failed.append("no frame could be compared (the log lacks the first processed frame)")
     for why in failed:
@@ -321,9 +325,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument(
         "--camera-id",
         type=whole_number(0),
-        default=0,
+        default=None,
         metavar="N",
-        help="flight log: which camera (default 0)",
+        help="flight log: only this camera's frames (default: every camera; a rig's log"
+        " replays every camera anyway, since each one's results depend on the others')",
     )
     p.add_argument("--flight", metavar="ID", default=None, help="flight log: " + FLIGHT_HELP)
     p.add_argument("--results", required=True, metavar="FILE", help="results CSV to write")

@@ -232,7 +232,9 @@ class CompanionEndpoint:
         self._signature_logged: Counter[str] = Counter()
         self._other_autopilots: set[tuple[int, int]] = set()
         self._health = HealthReport()
-        self._last_objects: tuple[ObjectResult, ...] = ()
+        # Each camera's last objects and when they were sent: OBSTACLE_DISTANCE covers
+        # every camera whose frames are fresh (one message, the rig's every sector).
+        self._last_objects: dict[int, tuple[int, tuple[ObjectResult, ...]]] = {}
         self._last_frame_us: int | None = None
         self._threshold = threshold
 
@@ -759,7 +761,7 @@ class CompanionEndpoint:
     def send_frame(self, result: FrameResult, now_us: int, camera_id: int = 0) -> None:
         """Queue the outputs of one processed frame (TCM_OBJECT_STATUS per object, and
         OBSTACLE_DISTANCE_3D / ADSB_VEHICLE when enabled)."""
-        self._last_objects = result.objects
+        self._last_objects[camera_id] = (now_us, result.objects)
         self._last_frame_us = now_us
         v = self.params.values
         threshold = self._threshold if self._threshold is not None else v["TCM_THRESH"]
@@ -778,6 +780,19 @@ class CompanionEndpoint:
             ):
                 self._send(traffic, now_us)
         self._announce_collisions(result, now_us)
+
+    def fresh_objects(self, now_us: int) -> tuple[ObjectResult, ...]:
+        """The last objects sent of every camera whose last frame went out less than
+        ``fresh_frame_us`` before ``now_us`` (camera id order): what OBSTACLE_DISTANCE
+        merges."""
+        fresh_us = self.config.fresh_frame_us
+        return tuple(
+            obj
+            for cam in sorted(self._last_objects)
+            for sent_us, objects in (self._last_objects[cam],)
+            if now_us - sent_us < fresh_us
+            for obj in objects
+        )
 
     def _announce_collisions(self, result: FrameResult, now_us: int) -> None:
         """One STATUSTEXT per collision condition (:class:`~.statustext.CollisionConditions`),
@@ -847,7 +862,7 @@ class CompanionEndpoint:
                 # proximity sensor unhealthy, which is the truth.
                 self._send(
                     outputs.obstacle_distance(
-                        self._last_objects, now_us, self.params.values["TCM_OBJ_RADIUS"]
+                        self.fresh_objects(now_us), now_us, self.params.values["TCM_OBJ_RADIUS"]
                     ),
                     now_us,
                 )

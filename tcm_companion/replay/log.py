@@ -75,6 +75,11 @@ class ReplayedFrame:
     # its result is not in the log): this one's pipeline state is not the flight's.
     after_gap: bool = False
 
+    @property
+    def camera_id(self) -> int:
+        """The camera whose frame this is (the logged result's)."""
+        return int(self.logged.get("camera_id", 0))
+
 
 @dataclass(frozen=True)
 class MissingFrame:
@@ -189,14 +194,27 @@ def _cameras(meta: dict[str, str], where: Path) -> tuple[list[CameraModel], list
     return models, names
 
 
+def log_cameras(path: str | Path, flight: str | None = None) -> list[str]:
+    """The names of the log's cameras, in camera-id order."""
+    p = Path(path)
+    return _cameras(_metadata(p, flight), p)[1]
+
+
 def replay_log(
     path: str | Path,
-    camera_id: int = 0,
+    camera_id: int | None = None,
     report: LogReport | None = None,
     flight: str | None = None,
     missing: list[MissingFrame] | None = None,
 ) -> Iterator[ReplayedFrame]:
-    """Yield every processed frame of camera ``camera_id`` of the log, recomputed.
+    """Yield every processed frame of the log, recomputed (only camera ``camera_id``'s
+    when given).
+
+    A log of a camera rig (two cameras or more) replays the whole rig whatever
+    ``camera_id`` says: every camera's frames, in the order the daemon processed them,
+    through one Companion, whose :class:`~tcm_companion.core.rig.RigTracker` needs them all
+    (rig-wide track ids, the objects another camera measures left out); ``camera_id`` then
+    only picks which frames are yielded.
 
     A truncated or damaged part is replayed as far as it is readable, then the next part
     (a frame processed there whose image was lost with the damaged tail is skipped);
@@ -213,21 +231,24 @@ def replay_log(
     meta = _metadata(p, flight)
     config, params = log_config(p, flight)
     models, names = _cameras(meta, p)
-    if not 0 <= camera_id < len(models):
+    if camera_id is not None and not 0 <= camera_id < len(models):
         raise LogReplayError(f"{p}: no camera {camera_id} in the log's metadata")
+    # One camera: its frames alone (a log may name cameras the daemon never processed).
+    # A rig: every camera, since each one's results depend on the others' (core.rig).
+    replayed = set(range(len(models))) if len(models) >= 2 else {camera_id or 0}
     cv2.setNumThreads(max(0, config.daemon.opencv_threads))
 
     endpoint = CompanionEndpoint(config.mavlink.endpoint, params)
     companion: Companion | None = None
-    images: dict[int, np.ndarray] = {}
+    images: dict[tuple[int, int], np.ndarray] = {}  # (camera id, capture µs) -> image
     gap = False
-    last_index: int | None = None
+    last_index: dict[int, int | None] = {}
     # Frames held back until a health record says whether messages were dropped meanwhile.
     held: list[ReplayedFrame] = []
     drops = 0  # messages dropped by the last health record
     health_us: int | None = None  # its time
-    image_topic = log_topics.camera_image(camera_id)
-    topics = {log_topics.MAVLINK_IN, image_topic, log_topics.RESULT, log_topics.BOXES}
+    image_topics = {log_topics.camera_image(c) for c in replayed}
+    topics = {log_topics.MAVLINK_IN, *image_topics, log_topics.RESULT, log_topics.BOXES}
     topics.add(log_topics.HEALTH)
     for rec in read_log(p, topics, report, flight):
         t_mono_us = rec.publish_time_ns // 1000
@@ -267,17 +288,19 @@ def replay_log(
             companion.receive_data(rec.data, t_mono_us)
         elif rec.topic == log_topics.BOXES:  # the live box feed, as the daemon received it
             companion.on_box_datagram(str(decode_json(rec).get("datagram", "")).encode(), t_mono_us)
-        elif rec.topic == image_topic:
-            _, t_capture, image = decode_image(rec)
-            images[t_capture] = image
+        elif rec.topic in image_topics:
+            image_cam, t_capture, image = decode_image(rec)
+            images[(image_cam, t_capture)] = image
         else:
             doc = decode_json(rec)
-            if doc.get("camera_id") != camera_id:
+            logged_cam = doc.get("camera_id")
+            if not isinstance(logged_cam, int) or logged_cam not in replayed:
                 continue
+            cam = logged_cam
             t_capture = int(doc["t_capture_us"])
-            frame_image = images.pop(t_capture, None)
+            frame_image = images.pop((cam, t_capture), None)
             # Frames superseded before processing were logged but never processed.
-            for old in [t for t in images if t < t_capture]:
+            for old in [k for k in images if k[0] == cam and k[1] < t_capture]:
                 del images[old]
             # A damaged part's unread tail held the images captured before the next part
             # began (its results too: those are not here to ask for them).
@@ -290,13 +313,14 @@ def replay_log(
             )
             why = "lost with a damaged part" if lost else "not logged"
             index = doc.get("frame_index")
-            if isinstance(index, int) and last_index is not None and index > last_index + 1:
+            last = last_index.get(cam)
+            if isinstance(index, int) and last is not None and index > last + 1:
                 # results of processed frames are not in the log (a reset, on a pipeline
                 # rebuild, counts down: not a hole)
                 gap = True
                 if missing is not None:
-                    missing.append(MissingFrame(t_capture, why, index - last_index - 1, "result"))
-            last_index = index if isinstance(index, int) else None
+                    missing.append(MissingFrame(t_capture, why, index - last - 1, "result"))
+            last_index[cam] = index if isinstance(index, int) else None
             if frame_image is None:  # dropped by the writer, or lost with a damaged tail
                 gap = True
                 if missing is not None:
@@ -304,7 +328,7 @@ def replay_log(
                 continue
             offset = doc.get("clock_offset_us")
             result = companion.replay_frame(
-                camera_id,
+                cam,
                 frame_image,
                 t_capture,
                 int(doc.get("t_process_us", t_mono_us)),
@@ -313,7 +337,8 @@ def replay_log(
             )
             if result is None:
                 raise LogReplayError(f"{p}: the pipeline raised on the frame at {t_capture} us")
-            held.append(ReplayedFrame(doc, result, gap))
+            if camera_id is None or cam == camera_id:
+                held.append(ReplayedFrame(doc, result, gap))
     yield from held
 
 

@@ -675,6 +675,14 @@ class Companion:
                     else [c for c in self.cameras if c.name == name]
                 )
                 for cam in cams:
+                    if self.rig is not None and name != BOX_FEED:
+                        # A rig forgets what only this camera measured; what another camera
+                        # sees too goes on there (not made unknown).
+                        self.rig.camera_lost(cam.camera_id)
+                        rig = self.rig
+                        cam.last_objects = tuple(
+                            o for o in cam.last_objects if not rig.has_track(o.track_id)
+                        )
                     if not cam.last_objects:
                         continue
                     # Tell the autopilot once that what it last heard is no longer known.

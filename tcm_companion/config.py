@@ -1261,6 +1261,55 @@ def _cameras_from_doc(
     return tuple(cams) if len(cams) == len(tables) else _one_camera()
 
 
+#: Camera sources that make one camera of the whole run, and why they cannot be one
+#: camera of a rig of several (yet).
+ONE_CAMERA_SOURCES: dict[str, str] = {
+    "sim": "renders the one camera of the simulated flight; fly a simulated rig with"
+    " `tcm-companion sitl --rig NAME`",
+    "scenario": "plays a one-camera scenario's frames and telemetry; replay a scenario"
+    " with `tcm-companion replay`",
+    "dual_fisheye": "stitches two fisheyes into the one panorama of a one-camera"
+    " configuration; give each camera of a rig its own source",
+}
+
+
+def rig_source_problems(config: AppConfig, where: str = "config") -> list[ConfigError]:
+    """Why ``tcm-companion run`` cannot run this rig's sources, one error per camera at
+    fault (empty for one camera): a source that makes the run's one camera
+    (:data:`ONE_CAMERA_SOURCES`), or two cameras opening one device or one
+    ``sim_url``. Not refused by the loader: a simulated rig (``sitl``) and the replay of
+    its flight log read such a configuration."""
+    if len(config.cameras) < 2:
+        return []
+    errors: list[ConfigError] = []
+    opened: dict[tuple[str, str], str] = {}
+    for cam in config.cameras:
+        src = cam.source
+        at = f"{where}: [cameras.{cam.name}]"
+        if src.source in ONE_CAMERA_SOURCES:
+            why = ONE_CAMERA_SOURCES[src.source]
+            errors.append(
+                ConfigError(
+                    f'{at} source = "{src.source}" {why} (one camera: [camera])',
+                    f"cameras.{cam.name}.source",
+                )
+            )
+            continue
+        key = {"device": ("device", src.device.strip()), "sim_autopilot": ("sim_url", src.sim_url)}
+        if src.source in key:
+            which, value = key[src.source]
+            other = opened.setdefault((which, value), cam.name)
+            if other != cam.name:
+                errors.append(
+                    ConfigError(
+                        f"{at} {which} = {value!r} is camera {other}'s too: each camera"
+                        " opens its own",
+                        f"cameras.{cam.name}.{which}",
+                    )
+                )
+    return errors
+
+
 def _url_errors(url: str, where: str, key: str, dotted: str) -> list[ConfigError]:
     """The error of a link URL setting (``[mavlink] url``, ``[camera] sim_url``) that is
     not one (:func:`~tcm_companion.io.transports.check_url`: scheme, host, port, baud

@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
 import pytest
+import tomli_w
 
+from tcm_companion import cli
 from tcm_companion.config import (
     MAX_CAMERAS,
     AppConfig,
@@ -17,7 +24,11 @@ from tcm_companion.config import (
     config_from_dict,
     config_to_toml,
     load_config,
+    rig_source_problems,
 )
+from tcm_companion.core.camera import Equirectangular, Fisheye, Pinhole
+from tcm_companion.core.rig_geometry import Arc, HorizonCoverage, horizon_coverage
+from tcm_companion.sim.scene.cameras import rig_cameras
 
 PINHOLE: dict[str, Any] = {
     "model": "pinhole",
@@ -202,3 +213,205 @@ def test_box_tracking_camera_counts_the_rigs_cameras() -> None:
     assert cfg.daemon.box_tracking_camera == 1
     with pytest.raises(ConfigError, match=r"box_tracking_camera = 1 is not a camera"):
         config_from_dict({"daemon": daemon, "detection": detection})
+
+
+# -- where the rig looks: core/rig_geometry.py --------------------------------------------
+def _coverage(rig: str) -> tuple[list[str], HorizonCoverage]:
+    cams = rig_cameras(rig)
+    return [n for n, _ in cams], horizon_coverage([m for _, m in cams])
+
+
+def test_quad_sees_all_round_with_four_10_degree_overlaps() -> None:
+    names, cov = _coverage("quad")
+    assert [cov.fov_deg(i) for i in range(4)] == [100.0] * 4
+    assert [a.text() for a in cov.camera_arcs(2)] == ["130°..-130° (100°)"]  # the rear, wrapped
+    assert cov.gaps() == [] and cov.unseen_deg == 0.0
+    pairs = {(names[i], names[j]): arcs for i, j, arcs in cov.overlaps()}
+    assert set(pairs) == {
+        ("front", "right"),
+        ("right", "rear"),
+        ("rear", "left"),
+        ("front", "left"),
+    }
+    assert pairs["front", "right"] == [Arc(40.0, 10.0)]
+    assert pairs["front", "left"] == [Arc(-50.0, 10.0)]
+    assert all(sum(a.width_deg for a in arcs) == 10.0 for arcs in pairs.values())
+
+
+def test_front_back_leaves_the_sides_unseen() -> None:
+    _, cov = _coverage("front-back")
+    assert cov.overlaps() == []
+    assert [a.text() for a in cov.gaps()] == ["-130°..-50° (80°)", "50°..130° (80°)"]
+    assert cov.unseen_deg == 160.0
+
+
+def test_the_panorama_sees_all_round_alone() -> None:
+    _, cov = _coverage("panorama")
+    assert cov.fov_deg(0) == 360.0 and cov.gaps() == [] and cov.overlaps() == []
+    assert [a.text() for a in cov.camera_arcs(0)] == ["all round (360°)"]
+
+
+def test_a_pinhole_does_not_see_behind_itself_and_a_fisheye_sees_its_180_degrees() -> None:
+    front = Pinhole(320, 240, (0.0, 0.0, 0.0), fx=160.0, fy=160.0, cx=160.0, cy=120.0)
+    cov = horizon_coverage([front], step_deg=0.5)
+    assert cov.fov_deg(0) == 90.0  # 2·atan(160/160), and nothing of the back half
+    fish = Fisheye(640, 640, (0.0, 0.0, 90.0), fx=200.0, fy=200.0, cx=320.0, cy=320.0)
+    cov = horizon_coverage([fish])
+    # θd = θ·200 px reaches the 320-px edge at θ = 1.6 rad (91.7°): the side half and a bit
+    assert cov.fov_deg(0) == pytest.approx(2 * math.degrees(1.6), abs=2.0)
+    assert cov.camera_arcs(0)[0].start_deg == pytest.approx(90.0 - math.degrees(1.6), abs=1.0)
+
+
+def test_a_step_that_does_not_divide_the_circle_is_refused() -> None:
+    with pytest.raises(ValueError, match="step_deg must divide 360"):
+        horizon_coverage([Equirectangular(360, 220)], step_deg=7.0)
+
+
+def test_config_check_prints_the_rig(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    path = tmp_path / "quad.toml"
+    path.write_text(_rig_toml("quad", source='source = "device"', device=True))
+    args = cli.build_parser().parse_args(["config", "check", str(path)])
+    assert args.func(args) == 0
+    out, err = capsys.readouterr()
+    lines = out.splitlines()
+    assert lines[1] == "# Rig: 4 cameras (id name: lens, mount, horizon)"
+    assert lines[3] == (
+        "#   1 right: pinhole 320x240, mount roll/pitch/yaw 0°/0°/90°, horizontal FOV at the"
+        " horizon 100° (40°..140°)"
+    )
+    assert "#   front + right: 40°..50° (10°)" in lines
+    assert "#   front + left: -50°..-40° (10°)" in lines
+    assert lines[11] == "# Unseen at the horizon: none"
+    assert not err
+    assert load_config(path) == config_from_dict(tomllib.loads(out))  # still TOML
+
+
+def test_config_check_warns_of_a_rig_run_would_refuse(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    path = tmp_path / "fb.toml"
+    path.write_text(_rig_toml("front-back", source=""))  # the default source: "sim"
+    args = cli.build_parser().parse_args(["config", "check", str(path)])
+    assert args.func(args) == 0
+    out, err = capsys.readouterr()
+    assert "# Unseen at the horizon: -130°..-50° (80°), 50°..130° (80°): 160° in all" in out
+    assert err.splitlines()[0] == (
+        f'warning: run would refuse it: {path}: [cameras.front] source = "sim" renders the'
+        " one camera of the simulated flight; fly a simulated rig with `tcm-companion sitl"
+        " --rig NAME` (one camera: [camera])"
+    )
+
+
+def _rig_toml(rig: str, source: str, device: bool = False, **extra: str) -> str:
+    out = []
+    for i, (name, m) in enumerate(rig_cameras(rig)):
+        table = {"name": name, **m.to_dict()}
+        lines = [f"{k} = {json.dumps(v)}" for k, v in table.items()]
+        if source:
+            lines.append(source)
+        if device:
+            lines.append(f'device = "/dev/video{i}"')
+        lines += [f"{k} = {v}" for k, v in extra.items()]
+        out.append("[[cameras]]\n" + "\n".join(lines))
+    return "\n\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("cameras", "match"),
+    [
+        ([{"source": "device"}, {}], r'\[cameras\.b\] source = "sim" renders the one camera'),
+        ([{"source": "device"}, {"source": "dual_fisheye"}], r'\[cameras\.b\] source = "dual_f'),
+        (
+            [{"source": "device", "device": "2"}, {"source": "device", "device": "2"}],
+            r"\[cameras\.b\] device = '2' is camera a's too",
+        ),
+        (
+            [{"source": "sim_autopilot"}, {"source": "sim_autopilot"}],
+            r"\[cameras\.b\] sim_url = 'tcp:127\.0\.0\.1:5763' is camera a's too",
+        ),
+    ],
+)
+def test_sources_a_rig_cannot_run_are_named(cameras: list[dict[str, Any]], match: str) -> None:
+    doc = {"cameras": [{"name": n, **c} for n, c in zip("ab", cameras, strict=True)]}
+    if any(c.get("source") == "dual_fisheye" for c in cameras):
+        doc["cameras"][1]["back"] = {"device": "1"}
+    problems = rig_source_problems(config_from_dict(doc), "c.toml")
+    assert len(problems) == 1 and re.search(match, str(problems[0])), problems
+    one = {"camera": {"name": "a", **cameras[0]}}
+    assert rig_source_problems(config_from_dict(one)) == []
+
+
+# -- run: every camera of the rig -----------------------------------------------------------
+def _textured(directory: Path, width: int, height: int, n: int, seed: int) -> Path:
+    rng = np.random.default_rng(seed)
+    directory.mkdir()
+    for k in range(n):
+        img = rng.integers(0, 255, (height, width, 3), dtype=np.uint8)
+        cv2.imwrite(str(directory / f"{k:06d}.png"), img)
+    return directory
+
+
+@pytest.mark.slow  # the real daemon for 2 s
+@pytest.mark.xdist_group("sitl")
+def test_run_delivers_frames_from_every_camera_of_the_rig(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rig = rig_cameras("front-back", resolution=(160, 120))
+    cams = []
+    for i, ((name, model), fps) in enumerate(zip(rig, (10, 5), strict=True)):
+        frames = _textured(tmp_path / name, model.width, model.height, 4, seed=i)
+        table = {"name": name, **model.to_dict(), "source": "frames", "path": str(frames)}
+        cams.append({**table, "loop": True, "fps": float(fps)})
+    config = tmp_path / "rig.toml"
+    config.write_text(tomli_w.dumps({"cameras": cams}))
+    summary = tmp_path / "summary.json"
+    argv = ["run", "--config", str(config), "--duration", "2", "--no-status"]
+    argv += ["--summary-json", str(summary), "--log-level", "ERROR"]
+    for k, v in {
+        "logging.enabled": "false",
+        "daemon.state_dir": str(tmp_path / "state"),
+        "mavlink.url": "udpout:127.0.0.1:9",  # discard: nobody answers
+    }.items():
+        argv += ["--set", f"{k}={v}"]
+    args = cli.build_parser().parse_args(argv)
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    doc = json.loads(summary.read_text())
+    by_name = {c["name"]: c for c in doc["cameras"]}
+    assert list(by_name) == ["front", "rear"]
+    # each camera at its own rate: 10 and 5 fps for 2 s
+    assert 14 <= by_name["front"]["delivered"] <= 22, by_name
+    assert 6 <= by_name["rear"]["delivered"] <= 12, by_name
+    assert all(c["processed"] >= 1 for c in doc["cameras"]), by_name
+    assert doc["processed"] == sum(c["processed"] for c in doc["cameras"])
+    assert re.search(r"; cameras front \d+/\d+, rear \d+/\d+", out), out
+
+
+def test_run_refuses_a_rig_it_cannot_open(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "rig.toml"
+    config.write_text(_rig_toml("front-back", source='source = "scenario"\npath = "x"'))
+    args = cli.build_parser().parse_args(["run", "--config", str(config), "--duration", "1"])
+    assert args.func(args) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and err[1].startswith(
+        f'error: {config}: [cameras.rear] source = "scenario" plays a one-camera scenario'
+    )
+
+
+def test_the_rig_example_of_config_toml_loads() -> None:
+    """config.toml's commented [[cameras]] example, uncommented in place of [camera]."""
+    text = (Path(__file__).resolve().parents[1] / "config.toml").read_text(encoding="utf-8")
+    lines = text.splitlines()
+    start = lines.index("# [[cameras]]")
+    example = []
+    for line in lines[start:]:
+        if not line.startswith("#"):
+            break
+        example.append(line.removeprefix("#").removeprefix(" "))
+    cfg = config_from_dict(tomllib.loads("\n".join(example)))
+    assert [c.name for c in cfg.cameras] == ["front", "rear"]
+    cov = horizon_coverage([c.model for c in cfg.cameras])
+    assert [round(cov.fov_deg(i)) for i in (0, 1)] == [100, 100] and cov.unseen_deg == 160.0
+    assert rig_source_problems(cfg) == []

@@ -26,6 +26,7 @@ from .common import (
     add_command,
     add_config_arguments,
     add_log_level_argument,
+    config_file,
     config_from_args,
     run_seconds,
     setup_logging,
@@ -66,6 +67,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     130 when SIGINT (Ctrl-C) does, 2 on a configuration or start-up error."""
     setup_logging(args.log_level)
     config = config_from_args(args)
+    from ..config import rig_source_problems
+
+    problems = rig_source_problems(config, config_file(args) or "config")
+    if problems:
+        for problem in problems:
+            print(f"error: {problem}", file=sys.stderr)
+        return 2
     from ..io.sdnotify import Notifier, watchdog_interval_us
 
     notifier = Notifier.from_env()
@@ -127,12 +135,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     from ..sim.sources import register_sim_sources
 
     register_sim_sources()  # source = "sim_autopilot" is the simulator's
-    cam = config.camera
-    try:
-        source = open_source(cam.source, cam.model)  # built; its reader thread opens it
-    except CameraError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    sources = []
+    for cam in config.cameras:
+        try:
+            # built; its reader thread opens it
+            sources.append(open_source(cam.source, cam.model))
+        except CameraError as exc:
+            rig = f"camera {cam.name}: " if len(config.cameras) > 1 else ""
+            print(f"error: {rig}{exc}", file=sys.stderr)
+            return 2
 
     async def main_flight(
         printer: StatusPrinter | None, stop: asyncio.Event
@@ -152,8 +163,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         from ..io.persist import SigningKeyError
         from ..service.runner import open_service
 
-        # The camera is expected at the rate it is set to ([camera] fps).
-        cameras = [CameraInput(cam.name, cam.model, source, fps=cam.source.fps)]
+        # Each camera is expected at the rate it is set to ([camera] fps, or its
+        # [[cameras]] table's); camera id = its index in the configuration.
+        cameras = [
+            CameraInput(cam.name, cam.model, source, fps=cam.source.fps)
+            for cam, source in zip(config.cameras, sources, strict=True)
+        ]
         start_log: StartLog | None = None
         if config.logging.enabled:
             from ..flight_log_setup import log_directory, start_flight_log
@@ -199,7 +214,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     ran = run_length_text(summary.duration_s, args.duration, stopped_by)
     if not ran.startswith(("stopped", "interrupted")):
         ran = f"stopped after {ran}"
-    feed = f"; box feed {summary.box_feed}" if summary.box_feed else ""
+    feed = ""
+    if len(summary.camera_names) > 1:  # a rig: each camera's frames, processed/captured
+        from .run_outputs import camera_summaries
+
+        feed += "; cameras " + ", ".join(
+            f"{c['name']} {c['processed']}/{c['captured']}" for c in camera_summaries(summary)
+        )
+    feed += f"; box feed {summary.box_feed}" if summary.box_feed else ""
     feed += f"; link {summary.link}" if summary.link else ""
     print(
         f"{ran}: captured {summary.captured}, processed {summary.processed}, dropped"

@@ -16,10 +16,13 @@ if TYPE_CHECKING:
 
 def run_inputs(args: argparse.Namespace, config: AppConfig) -> list[str | None]:
     """What a run reads from files, which its outputs must not overwrite: the
-    configuration file, and the camera's video, frames or scenario."""
-    src = config.camera.source
-    camera = src.path if src.source in ("file", "frames", "scenario") and src.path else None
-    return [config_file(args), camera]
+    configuration file, and each camera's video, frames or scenario."""
+    paths = [
+        c.source.path
+        for c in config.cameras
+        if c.source.source in ("file", "frames", "scenario") and c.source.path
+    ]
+    return [config_file(args), *paths]
 
 
 def check_outputs(
@@ -38,6 +41,24 @@ def check_outputs(
             check_folder(log_dir, inputs=inputs, others=[summary_json], create=True)
         except OutputRefused as exc:
             raise OutputRefused(f"{log_what} {exc}") from None
+
+
+def camera_summaries(summary: Any) -> list[dict[str, Any]]:
+    """Each camera's frames, in camera-id order: its name, and captured, delivered,
+    rejected, processed (sent), read errors."""
+    names = getattr(summary, "camera_names", []) or list(summary.camera_stats)
+    processed = getattr(summary, "processed_per_camera", []) or [None] * len(names)
+    return [
+        {
+            "name": name,
+            "captured": s.captured,
+            "delivered": s.delivered,
+            "rejected": s.rejected_empty + s.rejected_size,
+            "processed": n,
+            "read_errors": s.read_errors,
+        }
+        for name, s, n in zip(names, summary.camera_stats.values(), processed, strict=False)
+    ]
 
 
 def write_summary_json(
@@ -71,6 +92,7 @@ def write_summary_json(
         "frames_waited_for_attitude": summary.stats.frames_waited,
         "objects_sent": summary.stats.objects_sent,
         "box_feed": getattr(summary, "box_feed", {}),
+        "cameras": camera_summaries(summary),
         "link": getattr(summary, "link", {}),
         "stages_ms": {
             k: {

@@ -324,8 +324,14 @@ class Daemon:
                 now = clock.now_us()
                 self.companion.discard_pending(now)
                 await self._write(transport, self.host.bytes_to_send(now))
+        # One camera's stats under its source's name ("/dev/video0"); a rig's under each
+        # camera's name (unique; two sources may share a name, "frames").
+        rig = len(self.readers) > 1
         return self.host.summary(
             (clock.now_us() - t0) / 1e6,
-            {r.source.name: r.stats for r in self.readers},
+            {
+                self.camera_inputs[r.camera_id].name if rig else r.source.name: r.stats
+                for r in self.readers
+            },
             self._handoff_failures,
         )

@@ -21,6 +21,7 @@ Every time is µs on the companion monotonic clock (``_mono_us``) the driver run
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
@@ -145,6 +146,10 @@ class DaemonSummary:
     # What peers on the MAVLink link did that was refused or bounded (Companion.link_counts:
     # "signature rejected", "autopilot conflicts", "... rate-limited"; empty: nothing).
     link: dict[str, int] = field(default_factory=dict)
+    # Each camera's name and frames processed (sent), in camera-id order (camera_stats is
+    # in the same order).
+    camera_names: list[str] = field(default_factory=list)
+    processed_per_camera: list[int] = field(default_factory=list)
 
     @property
     def frames_balance(self) -> bool:
@@ -213,6 +218,7 @@ class CompanionHost:
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
         self.health_checks = 0
+        self.processed_by_camera: Counter[int] = Counter()  # frames sent, by camera id
         self._log_doc: dict[str, Any] = {}
 
     # -- inputs ---------------------------------------------------------------------------
@@ -309,6 +315,7 @@ class CompanionHost:
         for out in outputs:
             if not isinstance(out, FrameProcessed) or out.result is None:
                 continue
+            self.processed_by_camera[out.camera_id] += 1
             latency_ms = self.companion.frame_sent(out, sent_mono_us)
             if latency_ms is not None:
                 self.latencies_ms.append(latency_ms)
@@ -434,4 +441,6 @@ class CompanionHost:
             stage_ms={k: v.tolist() for k, v in self.stage_ms.items()},
             box_feed=comp.box_feed_counts() if comp.box_feed else {},
             link=comp.link_counts(),
+            camera_names=[c.name for c in self.cameras],
+            processed_per_camera=[self.processed_by_camera[i] for i in range(len(self.cameras))],
         )

@@ -188,12 +188,18 @@ def test_a_quad_rig_runs_one_camera_per_rig_camera(
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="wt26-rig's RigTracker.fuse passes results through so far")
 def test_the_crossing_ball_keeps_one_track_id(
     pass_flight: tuple[SitlReport, MockAutopilot],
 ) -> None:
-    report, _ = pass_flight
+    report, mock = pass_flight
     assert report.handover == {0: 1}, report.lines()
+    # On the wire: the right camera's first status carries the id the front one used, and
+    # is decided (the history came along: a cross-camera pair, no warm-up again).
+    statuses = _statuses(mock)
+    first_right = next(m for m in statuses if m.camera_id == 1)
+    front_ids = {int(m.track_id) for m in statuses if m.camera_id == 0}
+    assert int(first_right.track_id) in front_ids, (first_right, front_ids)
+    assert first_right.state != 0, first_right
 
 
 @pytest.fixture(scope="module")
@@ -217,7 +223,12 @@ def test_the_overlap_ball_is_scored_once_per_cycle(
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="wt26-rig's RigTracker.fuse passes results through so far")
+@pytest.mark.xfail(
+    strict=True,
+    reason="core/rig.py gives a per-camera track first seen without a NED bearing (no"
+    " attitude yet: the run's first frames) a rig track of its own and never associates it"
+    " later, so the ball both cameras see from the start stays two tracks",
+)
 def test_the_overlap_ball_gets_one_status_per_cycle(
     overlap_flight: tuple[SitlReport, MockAutopilot],
 ) -> None:

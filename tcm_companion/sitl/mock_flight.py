@@ -643,7 +643,14 @@ async def run_sitl(
             host, port = mock_link.local_address  # type: ignore[attr-defined]
             daemon_link = open_transport(f"udpout:{host}:{port}")
             await daemon_link.open()
-        scorer = _Scorer(mock, [c.model for c in cameras], now_us, config.pipeline.classifier)
+        # Two cameras or more: the Companion fuses them (core.rig), its ids are rig-wide.
+        scorer = _Scorer(
+            mock,
+            [c.model for c in cameras],
+            now_us,
+            config.pipeline.classifier,
+            rig_track_ids=len(cameras) > 1,
+        )
         lag = _LoopLag()
         lag_task = asyncio.create_task(lag.run(), name="loop lag")
         ran_out: list[bool] = []  # the duration ended the run (not its caller's stop)
@@ -791,7 +798,13 @@ def run_sitl_virtual(
                 mock,
                 timer,
                 min_accuracy,
-                _Scorer(mock, [c.model for c in cameras], start, config.pipeline.classifier),
+                _Scorer(
+                    mock,
+                    [c.model for c in cameras],
+                    start,
+                    config.pipeline.classifier,
+                    rig_track_ids=len(cameras) > 1,  # the Companion fuses (core.rig)
+                ),
                 state,
                 tuple(c.name for c in cameras),
             )

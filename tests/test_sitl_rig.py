@@ -281,3 +281,60 @@ def test_a_quad_flight_log_holds_every_camera(tmp_path: Path) -> None:
         assert topics[f"/camera{cid}/image"] >= 30, topics
     meta = read_metadata(tmp_path / "log")
     assert meta["cameras"] == '["front", "right", "rear", "left"]'
+
+
+_TWO_CAMERAS = """
+[[cameras]]
+name = "fwd"
+model = "pinhole"
+width = 320
+height = 240
+fx = 134.3
+fy = 134.3
+cx = 160.0
+cy = 120.0
+dist = [0.0, 0.0, 0.0, 0.0, 0.0]
+fps = 10
+
+[[cameras]]
+name = "starboard"
+model = "pinhole"
+width = 320
+height = 240
+fx = 134.3
+fy = 134.3
+cx = 160.0
+cy = 120.0
+dist = [0.0, 0.0, 0.0, 0.0, 0.0]
+mount_rpy_deg = [0.0, 0.0, 90.0]
+fps = 10
+"""
+
+
+@pytest.mark.slow  # the CLI in a subprocess, a 2-s flight of two cameras
+def test_sitl_flies_the_configured_cameras_without_rig(tmp_path: Path) -> None:
+    """No ``--rig``: a configuration of two ``[[cameras]]`` is flown as its rig (names,
+    lenses and frame rates from the file)."""
+    import os
+    import subprocess
+    import sys
+
+    cfg = tmp_path / "rig.toml"
+    cfg.write_text(_TWO_CAMERAS)
+    env = {**os.environ, "XDG_STATE_HOME": str(tmp_path / "state")}
+    env.pop("STATE_DIRECTORY", None)
+    args = ["--config", str(cfg), "--duration", "2", "--min-accuracy", "0"]
+    run = subprocess.run(
+        [sys.executable, "-m", "tcm_companion", "sitl", "--clock", "virtual", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+        env=env,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "  camera fwd: " in run.stdout and "  camera starboard: " in run.stdout, run.stdout
+    # 10 fps each, two cameras: about 40 frames in 2 s (not 2 x 50).
+    frames = next(x for x in run.stdout.splitlines() if x.startswith("  frames:"))
+    captured = int(frames.split("captured ")[1].split()[0])
+    assert 36 <= captured <= 42, frames

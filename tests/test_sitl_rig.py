@@ -202,6 +202,22 @@ def test_the_crossing_ball_keeps_one_track_id(
     assert first_right.state != 0, first_right
 
 
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="the rig reports a collision course (TTC 0.9 s) for the PASS ball, 3 m to the"
+    " side, as it enters the right camera at 3.1 s (the mock brakes on it when let)",
+)
+def test_the_crossing_ball_raises_no_collision_alarm(
+    pass_flight: tuple[SitlReport, MockAutopilot],
+) -> None:
+    from tcm_companion.sim.vehicle.mock_checks import collision_alarm
+
+    _, mock = pass_flight
+    alarms = [m for m in _statuses(mock) if collision_alarm(m, mock.config.brake_ttc_s)]
+    assert not alarms, [(m.camera_id, m.track_id, m.ttc) for m in alarms[:5]]
+
+
 @pytest.fixture(scope="module")
 def overlap_flight(
     tmp_path_factory: pytest.TempPathFactory,

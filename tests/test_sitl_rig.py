@@ -70,6 +70,37 @@ def test_camloss_has_one_object_per_camera_and_loses_the_front_one() -> None:
             assert _seen_by("CAMLOSS", rig, t) == ["front", "rear"], (rig, t)
 
 
+def test_an_object_is_scored_in_the_camera_nearest_its_axis() -> None:
+    from tcm_companion.io.scoring import Handover, view_camera
+
+    cams = [c for _, c in rig_cameras("quad")]
+    level = np.eye(3)
+
+    def at(az_deg: float) -> np.ndarray:
+        a = math.radians(az_deg)
+        return 5.0 * np.array([math.cos(a), math.sin(a), 0.0])
+
+    assert [view_camera(cams, level, at(a)) for a in (0, 44, 46, 90, 180, -90)] == [
+        0,
+        0,
+        1,
+        1,
+        2,
+        3,
+    ]
+    assert view_camera(cams[:1], level, at(120)) == -1  # outside the one camera
+    yawed = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # nose east
+    assert view_camera(cams, yawed, at(90)) == 0
+    h = Handover()
+    for cam, tid in ((0, 7), (0, 7), (1, 7)):
+        h.add("ball", cam, tid)
+    h.add("box", 1, 3)
+    h.add("box", 2, None)  # in view, unmatched
+    h.add("box", 2, 4)
+    h.add("tree", 0, 1)
+    assert h.figure() == {"ball": 1, "box": 2}
+
+
 def test_the_sitl_command_takes_a_rig() -> None:
     parser = build_parser()
     assert parser.parse_args(["sitl", "--rig", "quad"]).rig == "quad"

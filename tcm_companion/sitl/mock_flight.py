@@ -43,18 +43,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
-
 from ..config import AppConfig
 from ..core.camera import CameraModel
 from ..core.classify import ClassifierConfig
-from ..core.frames import normalize
 from ..core.pipeline import FrameResult
 from ..flight_log_setup import start_flight_log
 from ..io.aio import monotonic_us
 from ..io.cameras.settings import CameraSourceConfig
 from ..io.detector_model import read_detector_model
-from ..io.scoring import Score, match_truth, warmed_up
+from ..io.scoring import Handover, Score, match_truth, view_camera, warmed_up
 from ..io.transports import Transport, open_transport
 from ..service.host import CameraInput, DaemonSummary, NotifierLike, run_length_text
 from ..service.runner import ServiceState, StartLog, open_service, open_service_state
@@ -254,24 +251,7 @@ class _Scorer:
         self.frames = 0
         # per camera: its latest frame's capture time and detected objects
         self._latest: list[tuple[int, list[Any]]] = [(0, []) for _ in self.cameras]
-        self.track_ids: dict[int, set[Any]] = {}  # plan object index -> ids matched to it
-        self.views: dict[int, set[int]] = {}  # plan object index -> cameras it was viewed in
-
-    def _view(self, R_ned_from_body: np.ndarray, rel_ned_m: np.ndarray) -> int:
-        """The camera that sees ``rel_ned_m`` nearest its optical axis (-1: none)."""
-        best, best_cos = -1, -math.inf
-        b = normalize(rel_ned_m)
-        for cid, cam in enumerate(self.cameras):
-            R_ned_from_cam = R_ned_from_body @ cam.R_body_from_cam
-            px = cam.pixel_from_bearing_cam(R_ned_from_cam.T @ b)
-            if not np.all(np.isfinite(px)) or not bool(cam.in_image(px)):
-                continue
-            if len(self.cameras) == 1:
-                return cid
-            cos = float(R_ned_from_cam[:, 2] @ b)  # the optical axis is the camera's +z
-            if cos > best_cos:
-                best, best_cos = cid, cos
-        return best
+        self.handovers = Handover()  # by plan object index
 
     def __call__(self, camera_id: int, result: FrameResult) -> None:
         self.digest.update(frame_result_key(camera_id, result))
@@ -289,20 +269,19 @@ class _Scorer:
         sc, sc_cam = self.score, self.per_camera[camera_id]
         for i, obj in enumerate(self.mock.plan.objects):  # balls and targets of any shape
             rel = obj.centre_ned_m(truth.t_s) - truth.position_ned_m
-            if self._view(truth.R_ned_from_body, rel) != camera_id:
+            if view_camera(self.cameras, truth.R_ned_from_body, rel) != camera_id:
                 continue
-            self.views.setdefault(i, set()).add(camera_id)
             # Could it have been decided? Once the companion has it: after the interval
             # and the hold from then; until then, as long from when it came into view.
             self.first_in_view_us.setdefault(i, result.t_us)
             m = match_truth(rel, obj.bounding_radius_m, bearings, used)
-            state = None
+            state, tid = None, None
             if m.matched:
                 self.first_matched_us.setdefault(i, result.t_us)
                 src, o = objs[m.index]
                 state = o.state
                 tid = o.track_id if self.rig_track_ids else (src, o.track_id)
-                self.track_ids.setdefault(i, set()).add(tid)
+            self.handovers.add(i, camera_id, tid)
             first_us = self.first_matched_us.get(i, self.first_in_view_us[i])
             overdue = result.t_us - first_us >= self.decidable_after_us
             sc.add(warm, state, obj.moving, overdue)
@@ -312,11 +291,8 @@ class _Scorer:
     def handover(self) -> dict[int, int]:
         """Track ids per object that was viewed by more than one camera (plan object
         index -> how many ids were matched to it; the target is 1)."""
-        return {
-            i: len(self.track_ids.get(i, ()))
-            for i, cams in sorted(self.views.items())
-            if len(cams) > 1
-        }
+        fig = self.handovers.figure()
+        return {i: fig[i] for i in sorted(k for k in fig if isinstance(k, int))}
 
 
 class _LoopLag:

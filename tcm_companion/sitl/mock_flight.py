@@ -206,8 +206,11 @@ def _score_text(sc: Score) -> str:
 
 
 #: Another camera's objects count for a frame's matching when its frame was captured
-#: within this of the frame's (half a period at 25 Hz): the same frame cycle.
-_SAME_CYCLE_US = 20_000
+#: within this of the frame's: the same frame cycle, or the one before when that camera's
+#: frame of this cycle is processed after this one (a frame period at 25 Hz and a
+#: little). The rig reports an object from one camera, not necessarily the one it is
+#: scored in.
+_SAME_CYCLE_US = 45_000
 
 
 class _Scorer:
@@ -220,7 +223,7 @@ class _Scorer:
     frame of the camera that sees the object nearest its optical axis (the object's
     *view*), matched against the objects of every camera in that cycle (bearings are NED,
     so any camera may have measured it). ``per_camera`` tallies each view's share (their
-    sum is ``score``); ``track_ids`` collects the ids matched to each object, for the
+    sum is ``score``); ``handovers`` collects the ids matched to each object, for the
     handover figure (:meth:`handover`). One camera: exactly the single-camera score.
     ``rig_track_ids``: the ids are rig-wide (a :class:`~tcm_companion.core.rig.RigTracker`
     fuses the cameras); otherwise an id is ``(camera id, track id)``.

@@ -288,6 +288,28 @@ def test_frame_outputs_and_obstacle_distance() -> None:
     assert [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "OBSTACLE_DISTANCE"] == []
 
 
+def test_obstacle_distance_merges_every_fresh_cameras_objects() -> None:
+    """A rig: each camera's frame carries its own objects; OBSTACLE_DISTANCE covers all
+    of them (one camera's frame does not erase the sectors of another), and drops a
+    camera's once its frames are stale."""
+    ep, ap = connected()
+    ep.receive_data(ap.attitude(BOOT0_MS), T0)
+    gcs = MavlinkCodec(255, 190)
+    ep.receive_data(gcs.encode(d.MAVLink_param_set_message(7, 191, b"TCM_OUT_OBST", 1, 9)), T0)
+    ap.receive(ep.data_to_send())
+    ep.send_frame(frame([obj(3, "stationary", 0.0)], T0 + 1000), T0 + 2000, camera_id=0)
+    ep.send_frame(frame([obj(4, "stationary", 90.0)], T0 + 1000), T0 + 3000, camera_id=1)
+    ep.poll(T0 + 100_000)
+    (od,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "OBSTACLE_DISTANCE"]
+    ahead, right = od.distances[0], od.distances[90 // 5]
+    assert ahead < od.max_distance and right < od.max_distance
+    # The front camera goes quiet; the right one goes on: its object alone remains.
+    ep.send_frame(frame([obj(4, "stationary", 90.0)], T0 + 590_000), T0 + 600_000, camera_id=1)
+    ep.poll(T0 + 610_000)
+    (od,) = [m for m in ap.receive(ep.data_to_send()) if m.get_type() == "OBSTACLE_DISTANCE"]
+    assert od.distances[0] == od.max_distance + 1 and od.distances[90 // 5] < od.max_distance
+
+
 def test_collision_alarm_statustext_is_rate_limited() -> None:
     ep, ap = connected()
     for k in range(5):

@@ -43,6 +43,7 @@ import copy
 import json
 import math
 import tomllib
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -247,6 +248,9 @@ def replay_log(
     held: list[ReplayedFrame] = []
     drops = 0  # messages dropped by the last health record
     health_us: int | None = None  # its time
+    # Link bytes and box datagrams (receive time, is it MAVLink, data), handed to the
+    # Companion in their order up to each processed frame's start.
+    inputs: deque[tuple[int, bool, bytes]] = deque()
     image_topics = {log_topics.camera_image(c) for c in replayed}
     topics = {log_topics.MAVLINK_IN, *image_topics, log_topics.RESULT, log_topics.BOXES}
     topics.add(log_topics.HEALTH)
@@ -285,9 +289,9 @@ def replay_log(
             yield from held
             held.clear()
         elif rec.topic == log_topics.MAVLINK_IN:
-            companion.receive_data(rec.data, t_mono_us)
+            inputs.append((t_mono_us, True, rec.data))
         elif rec.topic == log_topics.BOXES:  # the live box feed, as the daemon received it
-            companion.on_box_datagram(str(decode_json(rec).get("datagram", "")).encode(), t_mono_us)
+            inputs.append((t_mono_us, False, str(decode_json(rec).get("datagram", "")).encode()))
         elif rec.topic in image_topics:
             image_cam, t_capture, image = decode_image(rec)
             images[(image_cam, t_capture)] = image
@@ -326,12 +330,18 @@ def replay_log(
                 if missing is not None:
                     missing.append(MissingFrame(t_capture, why))
                 continue
+            # What the daemon had received when it started on the frame, and no more: a
+            # turn's results are logged after its bytes are written, and bytes received
+            # meanwhile (after the frame's processing began) come before them in the log.
+            t_process = int(doc.get("t_process_us", t_mono_us))
+            while inputs and inputs[0][0] <= t_process:
+                _receive(companion, *inputs.popleft())
             offset = doc.get("clock_offset_us")
             result = companion.replay_frame(
                 cam,
                 frame_image,
                 t_capture,
-                int(doc.get("t_process_us", t_mono_us)),
+                t_process,
                 clock_offset_us=float(offset) if offset is not None else None,
                 override=str(doc.get("override") or ""),
             )
@@ -340,6 +350,14 @@ def replay_log(
             if camera_id is None or cam == camera_id:
                 held.append(ReplayedFrame(doc, result, gap))
     yield from held
+
+
+def _receive(companion: Companion, t_mono_us: int, mavlink: bool, data: bytes) -> None:
+    """Bytes the daemon received at ``t_mono_us``: from the link or the box feed."""
+    if mavlink:
+        companion.receive_data(data, t_mono_us)
+    else:
+        companion.on_box_datagram(data, t_mono_us)
 
 
 #: Disparities this close (relative) differ by float rounding only: another CPU's SIMD loops

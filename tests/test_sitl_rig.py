@@ -304,6 +304,7 @@ def test_a_dying_camera_makes_only_its_objects_unknown(tmp_path: Path) -> None:
     after = _statuses(mock, since_s=dies_s + 0.5)
     front_after = [m for m in after if m.camera_id == 0]
     rear_after = [m for m in after if m.camera_id == 1]
+    assert front_after, "the front ball was never sent unknown"
     assert all(m.state == 0 for m in front_after), Counter(m.state for m in front_after)
     assert sum(m.state != 0 for m in rear_after) >= 25, Counter(m.state for m in rear_after)
     rear = report.camera_scores[1]

@@ -263,6 +263,12 @@ class FlightReport:
         return None if t_s is None else t_s - self.t0_s
 
     @property
+    def ball_track_ids(self) -> list[int]:
+        """The daemon's track ids matched to the ball, in order (a rig: one if the
+        handover from camera to camera kept the id)."""
+        return sorted({row.track_id for row in self.trace if row.track_id >= 0})
+
+    @property
     def first_alarm_s(self) -> float | None:
         return self.alarms[0].t_mono_us / 1e6 if self.alarms else None
 
@@ -342,7 +348,10 @@ class FlightReport:
                 if self.turn_s is not None
                 else ""
             )
-            out.append(f"  rig {self.plan.rig}: the ball matched in {seen}{turned}")
+            out.append(
+                f"  rig {self.plan.rig}: the ball matched in {seen}{turned}; its track ids"
+                f" {self.ball_track_ids} (one: the handover kept it)"
+            )
         if self.alarms:
             a = self.alarms[0]
             cam = f" camera {self.cameras[a.camera_id]}," if len(self.cameras) > 1 else ""

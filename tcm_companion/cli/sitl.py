@@ -178,16 +178,17 @@ def run_sitl_until(
     *,
     service: bool = False,
     summary_json: Callable[[DaemonSummary], None] | None = None,
+    rig: str = "panorama",
     **kwargs: Any,
 ) -> int:
     """SITL on uvloop until ``duration_s`` or SIGINT/SIGTERM; prints the report.
     ``service``: ``run`` (SIGTERM is its normal stop, exit 0); ``summary_json`` writes
-    the daemon's summary (``run --summary-json``)."""
+    the daemon's summary (``run --summary-json``); ``rig``: the simulated cameras
+    (:func:`~tcm_companion.sitl.mock_flight.run_sitl`)."""
 
     async def main(on_status: StatusPrinter | None, stop: asyncio.Event) -> SitlReport:
         from ..sitl.mock_flight import run_sitl
 
-        rig = kwargs.pop("rig", "panorama")
         return await run_sitl(
             config,
             camera_model=config.camera.model if rig == "panorama" else None,

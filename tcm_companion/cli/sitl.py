@@ -163,7 +163,8 @@ def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
     async def main() -> int:
         from ..sitl.ardupilot import run_ardupilot_sitl
 
-        report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode, rig=args.rig)
+        rig = args.rig or ("config" if len(config.cameras) > 1 else None)
+        report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode, rig=rig)
         print("\n".join(report.lines()))
         return 0 if report.ok else 1
 

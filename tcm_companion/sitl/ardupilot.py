@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..config import AppConfig
+from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult
 from ..io.aio import monotonic_us
 from ..io.cameras.base import FrameSource
@@ -94,8 +95,9 @@ class FlightPlanAP:
     min_conf_pct: int = 50  # TCMA_MIN_CONF
     # the daemon's TCM_* parameters, set from the ground station through ArduPilot
     companion_params: tuple[tuple[str, float], ...] = ()
-    # A camera rig (sim.scene.cameras.RIGS; None: the configuration's one camera): one
-    # daemon camera per rig camera, all rendered from the pose the autopilot reports.
+    # A camera rig (sim.scene.cameras.RIGS, or "config": the configuration's [[cameras]];
+    # None: its one camera): one daemon camera per rig camera, all rendered from the pose
+    # the autopilot reports.
     rig: str | None = None
     # Turn: this long after the ball's launch, the vehicle turns its nose by turn_deg
     # (positive clockwise) and flies on along the same velocity, so that a ball held at
@@ -502,7 +504,13 @@ async def fly_scene(
     start the daemon and the camera, take off (or go back to GUIDED), fly steadily until
     the scene's ball is launched and the applet brakes, watch, stop the daemon."""
     cam_cfg = config.camera
-    lenses = [(cam_cfg.name, cam_cfg.model)] if plan.rig is None else rig_cameras(plan.rig)
+    lenses: list[tuple[str, CameraModel]]
+    if plan.rig is None:
+        lenses = [(cam_cfg.name, cam_cfg.model)]
+    elif plan.rig == CONFIG_RIG:
+        lenses = [(c.name, c.model) for c in config.cameras]
+    else:
+        lenses = rig_cameras(plan.rig)
     camera = AutopilotSimCamera(
         lenses[0][1],
         sitl.serial2_url,
@@ -676,6 +684,8 @@ def _judge(r: FlightReport) -> list[str]:
     return out
 
 
+#: ``FlightPlanAP.rig``: the configuration's ``[[cameras]]``.
+CONFIG_RIG = "config"
 #: A rig flight's turn (degrees, clockwise) after the crossing ball's launch: the ball
 #: comes in at 37° right of the nose (in the front camera; the right one starts at 40°),
 #: and after the turn at 77° (right camera) for front-right and quad; at 147° (rear
@@ -688,8 +698,8 @@ def rig_plan(
 ) -> FlightPlanAP:
     """The flight of ``scene`` with camera rig ``rig``: the crossing ball appears in one
     camera and, after the vehicle's turn (:data:`RIG_TURN_DEG`), reaches it through
-    another."""
-    turn = RIG_TURN_DEG[rig] if scene == "crossing" else 0.0
+    another (``rig`` :data:`CONFIG_RIG`, the configuration's cameras: no turn)."""
+    turn = RIG_TURN_DEG.get(rig, 0.0) if scene == "crossing" else 0.0
     return FlightPlanAP(
         scene=SceneConfig(kind=scene),  # type: ignore[arg-type]
         pilot_mode=pilot_mode,

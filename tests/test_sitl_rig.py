@@ -411,3 +411,17 @@ def test_a_rig_flight_log_replays_to_exactly_the_logged_results(tmp_path: Path) 
     assert {f.camera_id for f in frames} == {0, 1}
     assert [d for f in frames for d in compare(f)] == []
     assert any(o.state != "unknown" for f in frames for o in f.result.objects)
+
+
+def test_the_scenarios_camera_loss_needs_that_camera(caplog: pytest.LogCaptureFixture) -> None:
+    from tcm_companion.sitl.mock_flight import _camera_loss
+
+    cfg = _config("CAMLOSS")
+    assert _camera_loss(cfg, "quad", "scenario") == ("front", 8.0)
+    assert _camera_loss(cfg, "panorama", "scenario") is None
+    assert _camera_loss(cfg, "quad", None) is None
+    assert _camera_loss(cfg, "quad", ("rear", 2.0)) == ("rear", 2.0)
+    assert _camera_loss(_config("PASS"), "quad", "scenario") is None
+    with caplog.at_level("WARNING"):
+        assert _camera_loss(cfg, "config", "scenario") is None  # one camera, "camera0"
+    assert "no camera dies" in caplog.text

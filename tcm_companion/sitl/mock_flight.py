@@ -400,14 +400,29 @@ def _sim_camera(
 
 def _camera_loss(config: AppConfig, rig: str, camera_loss: CameraLoss) -> tuple[str, float] | None:
     """``camera_loss`` as given, or (``"scenario"``) the scenario's own
-    (:data:`~tcm_companion.sim.scene.names.CAMERA_LOSS`) on a rig of several cameras."""
+    (:data:`~tcm_companion.sim.scene.names.CAMERA_LOSS`) on a rig of several cameras that
+    has the camera (else a warning: none dies)."""
+    from ..sim.scene.cameras import rig_cameras
     from ..sim.scene.names import CAMERA_LOSS
 
     if camera_loss != "scenario":
         return camera_loss
-    if rig == "panorama":
+    loss = CAMERA_LOSS.get(config.sim.scenario.upper())
+    if rig == "panorama" or loss is None:
         return None
-    return CAMERA_LOSS.get(config.sim.scenario.upper())
+    names = (
+        [c.name for c in config.cameras] if rig == CONFIG_RIG else [n for n, _ in rig_cameras(rig)]
+    )
+    if loss[0] not in names:
+        log.warning(
+            "%s: the %s camera dies %g s in, but this rig has %s: no camera dies",
+            config.sim.scenario.upper(),
+            loss[0],
+            loss[1],
+            ", ".join(names),
+        )
+        return None
+    return loss
 
 
 @dataclass

@@ -229,6 +229,28 @@ def run_crossing(scene: Crossing, with_rig: bool) -> list[tuple[float, int, Obje
     return out
 
 
+def test_a_rebuilt_pipelines_warm_up_is_decided_from_the_rig_tracks_history() -> None:
+    """One camera sees a stationary object for 1.2 s (decided after 1 s), then its
+    pipeline is rebuilt (a parameter change): the new track's warm-up is decided from
+    the rig track's earlier observations, as one camera's handover to itself."""
+    scene, front = Crossing(moving=False), FRONT_RIGHT[0]
+    rig = RigTracker(FRONT_RIGHT, CONFIG)
+    stationary = Classification("stationary", "", disparity=0.0)
+    states = []
+    for i in range(35):  # az 27° -> 42°: whole in the front camera
+        t_s = i * PERIOD_US * 1e-6
+        rebuilt = i >= 30
+        own = stationary if (t_s >= 1.0 and not rebuilt) else None
+        obj = view(
+            front, 1 if rebuilt else 5, scene.bearing(t_s), scene.alpha(t_s), classification=own
+        )
+        result = frame(i - 30 if rebuilt else i, round(t_s * 1e6), obj, translation=NORTH)
+        (out,) = rig.fuse(0, result).objects
+        states.append((out.track_id, out.state))
+    assert states[:25] == [(1, "unknown")] * 25  # its first second: warm-up
+    assert states[25:] == [(1, "stationary")] * 10  # before and after the rebuild
+
+
 @pytest.mark.parametrize("moving", [False, True])
 def test_a_cross_camera_pair_decides_the_new_cameras_young_track(moving: bool) -> None:
     scene = Crossing(moving)
@@ -382,8 +404,16 @@ def test_the_companion_builds_a_rig_for_two_cameras_only() -> None:
     assert isinstance(two.rig, RigTracker)
     assert all(two.pipeline(k).config.always_translate for k in (0, 1))
     rig = two.rig
-    two._rebuild(two.cameras[0])  # a parameter change or repeated errors
+    two._rebuild(two.cameras[0])  # repeated errors
     assert two.rig is rig and two.pipeline(0).config.always_translate
+    # A parameter change rebuilds every pipeline; the rig stays and decides with it.
+    from tcm_companion.mavlink import tcm_dialect as d
+
+    mav = d.MAVLink(None, srcSystem=255, srcComponent=190)
+    param_set = mav.param_set_encode(1, 191, b"TCM_THRESH", 0.2, d.MAV_PARAM_TYPE_REAL32)
+    two.receive_data(bytes(param_set.pack(mav)), 1_000)
+    assert two.pipeline(1).config.classifier.tcm_threshold == pytest.approx(0.2)
+    assert two.rig is rig and rig.pipeline_config == two.pipeline(1).config
 
 
 def test_a_lost_camera_makes_only_what_it_alone_measured_unknown(
@@ -487,6 +517,15 @@ def test_a_rigs_flight_log_replays_every_camera_exactly(
     assert [d for f in frames for d in compare(f)] == []  # bit-exact, every camera
     # The ball (on the right, T90) is one rig track, measured by the right camera.
     assert {(f.camera_id, o.track_id) for f in frames for o in f.result.objects} == {(1, 1)}
+    # On the wire: that one track, with the camera that measured it.
+    from tcm_companion.flightlog import topics
+    from tcm_companion.flightlog.reader import read_log
+
+    from .helpers import decode
+
+    sent = b"".join(rec.data for rec in read_log(log, {topics.MAVLINK_OUT}))
+    statuses = [m for m in decode(sent) if m.get_type() == "TCM_OBJECT_STATUS"]
+    assert statuses and {(m.track_id, m.camera_id) for m in statuses} == {(1, 1)}
     capsys.readouterr()
     csv_path = tmp_path / "r.csv"
     assert cli.main(["replay", str(log), "--results", str(csv_path), "--check"]) == 0

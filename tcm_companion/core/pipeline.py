@@ -93,8 +93,9 @@ class PipelineConfig:
     egomotion_rotation_correction: bool = True
     # Compute the default interval's translation at every frame, even when no track's
     # pair needed it (FrameResult.translation): a camera rig decides a young track that
-    # continues another camera's object with it (core.rig). Off for one camera.
-    always_translate: bool = False
+    # continues another camera's object with it (core.rig). None (unset, and so left out
+    # of a written configuration): off; the Companion sets True for two cameras or more.
+    always_translate: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -279,10 +280,6 @@ class Pipeline:
         live = {tr.track_id for tr in tracks}
         for tid in [t for t in self._memory if t not in live]:
             del self._memory[tid]
-        t4 = clock()
-        timings["bsm"] = self._bsm_s * 1e3
-        timings["classify"] = (t4 - t3 - self._bsm_s) * 1e3
-        timings["total"] = (t4 - t_start) * 1e3
         # The translation reported: the default interval's, ending at this frame (with a
         # fit window, at the frame half a window back, where the pairs end).
         end = self._frame_near(frame_time_us - self._fit_half_us) if self._fit_half_us else None
@@ -292,6 +289,10 @@ class Pipeline:
             key = (default_ref.index, end_index)
             if key not in cache and default_ref.index != end_index:
                 cache[key] = self._translation(*key)
+        t4 = clock()
+        timings["bsm"] = self._bsm_s * 1e3
+        timings["classify"] = (t4 - t3 - self._bsm_s) * 1e3
+        timings["total"] = (t4 - t_start) * 1e3
         return FrameResult(
             index,
             frame_time_us,

@@ -41,7 +41,7 @@ class RigConfig:
 
     # A per-camera track seen for the first time joins a rig track whose predicted NED
     # bearing is within gate_rad + gate_radius_factor * (the larger angular radius) (the
-    # per-camera tracker's gate: docs/decisions.md §"Camera rigs").
+    # per-camera tracker's gate; docs/decisions.md §11).
     gate_rad: float = math.radians(4.0)
     gate_radius_factor: float = 1.5
     # ... and whose size agrees: |ln(α_new / α_rig)| at most this (not checked for a view
@@ -102,6 +102,7 @@ class _RigTrack:
     measuring: int  # the camera whose results report it
     history: list[_RigObservation]  # every camera's views, by capture time
     bound: dict[int, int] = field(default_factory=dict)  # camera id -> its track id
+    bound_us: dict[int, int] = field(default_factory=dict)  # ... since (capture time)
     views: dict[int, _View] = field(default_factory=dict)
     cameras: set[int] = field(default_factory=set)  # every camera it was ever bound to
     memory: deque[tuple[int, Classification]] = field(default_factory=deque)
@@ -145,9 +146,11 @@ class _RigTrack:
         return best
 
 
-#: A camera's own result that the rig may decide from a cross-camera pair: its track is
-#: too young for a pair of its own, or its pair's other end was cut by the image border
-#: (as an object comes into view from a neighbouring camera's).
+#: A camera's own result that the rig may decide from a pair over the rig track's history
+#: (an end seen by another camera, or by an earlier track of this camera: one its tracker
+#: lost, a rebuilt pipeline's): its track is too young for a pair of its own, or its
+#: pair's other end was cut by the image border (as an object comes into view from a
+#: neighbouring camera's).
 CROSS_PAIR_REASONS = frozenset({"warm-up", "at image border"})
 
 
@@ -173,10 +176,6 @@ class RigTracker:
         self.pipeline_config = pipeline_config
         self.config = config
         self.stats: dict[str, int] = {"handovers": 0, "merged": 0, "rig_tracks": 0}
-        cls = pipeline_config.classifier
-        self._fit_half_us = round(0.5 * cls.fit_window_for(pipeline_config.detection.backend) * 1e6)
-        span_s = cls.longest_interval_s + cls.interval_tolerance_s + 2 * self._fit_half_us * 1e-6
-        self._history_us = round(span_s * 1e6)
         # Distance (px) of every pixel centre from the image's edge or the lens's valid
         # area, and the pixel's angular size: a view's margin to its border, any lens.
         self._border_px: list[np.ndarray] = []
@@ -190,6 +189,20 @@ class RigTracker:
         # Per-camera tracks replaced by a newer track of the same camera for their object.
         self._retired: set[tuple[int, int]] = set()
         self._next_id = 1
+
+    @property
+    def pipeline_config(self) -> PipelineConfig:
+        """The pipelines' configuration (its classifier decides the cross-camera pairs);
+        set it when the pipelines are rebuilt with another (the rig tracks stay)."""
+        return self._pipeline_config
+
+    @pipeline_config.setter
+    def pipeline_config(self, value: PipelineConfig) -> None:
+        self._pipeline_config = value
+        cls = value.classifier
+        self._fit_half_us = round(0.5 * cls.fit_window_for(value.detection.backend) * 1e6)
+        span_s = cls.longest_interval_s + cls.interval_tolerance_s + 2 * self._fit_half_us * 1e-6
+        self._history_us = round(span_s * 1e6)
 
     # -- the interface -------------------------------------------------------------------
     def fuse(self, camera_id: int, result: FrameResult) -> FrameResult:
@@ -306,11 +319,12 @@ class RigTracker:
         self._next_id += 1
         self.stats["rig_tracks"] += 1
         self._tracks[rt.rig_id] = rt
-        self._bind(rt, camera_id, track_id)
+        self._bind(rt, camera_id, track_id, t_us)
         return rt
 
-    def _bind(self, rt: _RigTrack, camera_id: int, track_id: int) -> None:
+    def _bind(self, rt: _RigTrack, camera_id: int, track_id: int, t_us: int) -> None:
         rt.bound[camera_id] = track_id
+        rt.bound_us[camera_id] = t_us
         rt.cameras.add(camera_id)
         self._binding[(camera_id, track_id)] = rt.rig_id
 
@@ -371,7 +385,7 @@ class RigTracker:
                     # The camera's old track of the object coasts out, unreported.
                     self._binding.pop((k, old), None)
                     self._retired.add((k, old))
-                self._bind(rt, k, obj.track_id)
+                self._bind(rt, k, obj.track_id, t_us)
                 assigned.add(obj.track_id)
         for obj in new:
             if obj.track_id not in assigned:
@@ -464,8 +478,11 @@ class RigTracker:
         if cur is None:
             return None
         ref = rt.nearest(cur.t_us - round(cls.interval_s * 1e6), tol_us, cur.t_us - 1, same_us)
-        if ref is None or (ref.camera_id == k and cur.camera_id == k):
-            return None  # not a cross-camera pair: the camera's own pipeline decides
+        if ref is None:
+            return None
+        if ref.camera_id == k and cur.camera_id == k and ref.t_us >= rt.bound_us.get(k, 0):
+            # Both ends seen by this camera's present track: its own pipeline decides.
+            return None
         b1 = cur.bearing_ned
         if self.pipeline_config.egomotion_rotation_correction and est.rotation_ned_rad.any():
             b1 = rotate_by_vector(b1, est.rotation_ned_rad)

@@ -65,6 +65,11 @@ Policies that live here:
   whether a waiting frame stays when a newer one arrives.
 - **Parameter changes** from the ground station that touch the pipeline rebuild it with
   the new configuration (the shared telemetry is kept; objects warm up again).
+- **One object, one track** with two cameras or more: every camera's result goes through
+  one :class:`~tcm_companion.core.rig.RigTracker` (rig-wide track ids, each object
+  reported by the camera that sees it best, a track entering from another camera's view
+  decided with that history). A lost camera makes only what it alone measured unknown;
+  OBSTACLE_DISTANCE covers every camera. One camera: no rig, results as before.
 - **Nothing is sent before the autopilot's boot clock is known** (TIMESYNC or the
   telemetry): a ``time_boot_ms`` of 0 would read as ancient.
 - **Once a second** (``health_interval_us``, on absolute deadlines that skip rather
@@ -537,6 +542,16 @@ class Companion:
             return result
         return self.rig.fuse(cam.camera_id, result)
 
+    def _rig_camera_lost(self, cam: CameraSlots) -> None:
+        """A rig forgets what only camera ``cam`` measured (:meth:`.RigTracker.camera_lost`)
+        and keeps in its last objects only those, to be sent once as unknown; what another
+        camera sees too goes on there. Nothing with one camera."""
+        rig = self.rig
+        if rig is None:
+            return
+        rig.camera_lost(cam.camera_id)
+        cam.last_objects = tuple(o for o in cam.last_objects if not rig.has_track(o.track_id))
+
     def replay_frame(
         self,
         camera_id: int,
@@ -576,6 +591,8 @@ class Companion:
         self.pipeline_config = new
         for cam in self.cameras:
             self._rebuild(cam)
+        if self.rig is not None:  # its tracks bridge the pipelines' warm-up
+            self.rig.pipeline_config = new
         self.endpoint.statustext(d.MAV_SEVERITY_INFO, "TCM: parameters applied", now_mono_us)
 
     def _rebuild(self, cam: CameraSlots) -> None:
@@ -675,14 +692,8 @@ class Companion:
                     else [c for c in self.cameras if c.name == name]
                 )
                 for cam in cams:
-                    if self.rig is not None and name != BOX_FEED:
-                        # A rig forgets what only this camera measured; what another camera
-                        # sees too goes on there (not made unknown).
-                        self.rig.camera_lost(cam.camera_id)
-                        rig = self.rig
-                        cam.last_objects = tuple(
-                            o for o in cam.last_objects if not rig.has_track(o.track_id)
-                        )
+                    if name != BOX_FEED:
+                        self._rig_camera_lost(cam)
                     if not cam.last_objects:
                         continue
                     # Tell the autopilot once that what it last heard is no longer known.

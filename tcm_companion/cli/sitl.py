@@ -20,7 +20,7 @@ import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from ..sim.scene.names import SCENARIO_NAMES
+from ..sim.scene.names import RIGS, SCENARIO_NAMES
 from .common import (
     add_command,
     add_config_arguments,
@@ -74,10 +74,19 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     if args.log is not None:
         check_outputs(run_inputs(args, config), args.log, None, "--log")
     signals = RunSignals()
+    rig = args.rig or ("config" if len(config.cameras) > 1 else "panorama")
     if args.clock == "virtual":
-        return _run_sitl_virtual(config, args.duration, printer, signals, args.log, min_accuracy)
+        return _run_sitl_virtual(
+            config, args.duration, printer, signals, args.log, min_accuracy, rig
+        )
     return run_sitl_until(
-        config, args.duration, printer, signals, log_dir=args.log, min_accuracy=min_accuracy
+        config,
+        args.duration,
+        printer,
+        signals,
+        log_dir=args.log,
+        min_accuracy=min_accuracy,
+        rig=rig,
     )
 
 
@@ -113,6 +122,7 @@ def _run_sitl_virtual(
     signals: RunSignals,
     log_dir: str | None,
     min_accuracy: float | None,
+    rig: str = "panorama",
 ) -> int:
     """``sitl --clock virtual``: no event loop; SIGINT/SIGTERM end the simulation early."""
     from ..sitl.mock_flight import run_sitl_virtual
@@ -121,7 +131,8 @@ def _run_sitl_virtual(
     with printer as on_status, signals.installed(stop.set):
         report = run_sitl_virtual(
             config,
-            camera_model=config.camera.model,
+            camera_model=config.camera.model if rig == "panorama" else None,
+            rig=rig,
             duration_s=duration_s,
             should_stop=stop.is_set,
             on_status=on_status,
@@ -152,7 +163,8 @@ def _run_ardupilot(args: argparse.Namespace, config: AppConfig) -> int:
     async def main() -> int:
         from ..sitl.ardupilot import run_ardupilot_sitl
 
-        report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode)
+        rig = args.rig or ("config" if len(config.cameras) > 1 else None)
+        report = await run_ardupilot_sitl(config, scene, pilot_mode=args.pilot_mode, rig=rig)
         print("\n".join(report.lines()))
         return 0 if report.ok else 1
 
@@ -167,18 +179,21 @@ def run_sitl_until(
     *,
     service: bool = False,
     summary_json: Callable[[DaemonSummary], None] | None = None,
+    rig: str = "panorama",
     **kwargs: Any,
 ) -> int:
     """SITL on uvloop until ``duration_s`` or SIGINT/SIGTERM; prints the report.
     ``service``: ``run`` (SIGTERM is its normal stop, exit 0); ``summary_json`` writes
-    the daemon's summary (``run --summary-json``)."""
+    the daemon's summary (``run --summary-json``); ``rig``: the simulated cameras
+    (:func:`~tcm_companion.sitl.mock_flight.run_sitl`)."""
 
     async def main(on_status: StatusPrinter | None, stop: asyncio.Event) -> SitlReport:
         from ..sitl.mock_flight import run_sitl
 
         return await run_sitl(
             config,
-            camera_model=config.camera.model,
+            camera_model=config.camera.model if rig == "panorama" else None,
+            rig=rig,
             duration_s=duration_s,
             stop=stop,
             on_status=on_status,
@@ -249,6 +264,15 @@ def add_parsers(sub: Any) -> None:
         metavar="PCT",
         help="mock: fail (exit 1) when the accuracy of the decided object-frames after the"
         " warm-up is below this, or nothing was decided (default 90; 0: not judged)",
+    )
+    p.add_argument(
+        "--rig",
+        choices=RIGS,
+        default=None,
+        help="the simulated cameras: panorama (one 360° camera), quad (front, right, rear,"
+        " left: four 100° pinholes) or front-back; the daemon runs one camera per rig"
+        " camera, each rendered from the vehicle's pose (default: the configuration's"
+        " [[cameras]] when it has two or more, else [camera])",
     )
     p.add_argument("--log", metavar="DIR", default=None, help="write the flight log (MCAP) here")
     p.add_argument("--no-status", action="store_true", help="no status line on stderr")

@@ -9,6 +9,10 @@
   :func:`after_warmup`), less :data:`WARMUP_SLACK_S` of capture jitter.
 - :class:`Score`: the tally of object-frames in view, matched, decided and correct, with
   accuracy and coverage, as SITL reports it.
+- A camera rig: :func:`view_camera` — the camera an object-frame is scored in (the one
+  that sees the object nearest its optical axis), once per frame cycle — and
+  :class:`Handover`, the track ids matched to each object seen by more than one camera
+  (target 1).
 
 The evaluation (``eval``, :mod:`tcm_companion.eval.evaluate`), the mock-autopilot SITL in
 real and virtual time (:mod:`tcm_companion.sitl.mock`) and the ArduPilot SITL flight
@@ -19,15 +23,18 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
 from ..core.classify import ClassifierConfig
 from ..core.frames import angle_between, normalize
 from ..core.timebase import JITTER_FRACTION, MAX_FRAME_RATE_HZ
+
+if TYPE_CHECKING:
+    from ..core.camera import CameraModel
 
 #: A truth object matches a detected object whose bearing is within this of its centre's,
 #: plus twice its true angular radius (a box or blob centre may sit anywhere on the disc).
@@ -151,3 +158,47 @@ class Score:
     @property
     def coverage(self) -> float:
         return self.decided / self.scored if self.scored else math.nan
+
+
+def view_camera(
+    cameras: Sequence[CameraModel], R_ned_from_body: np.ndarray, rel_ned_m: np.ndarray
+) -> int:
+    """The camera of a rig that an object at ``rel_ned_m`` (NED, from the vehicle) is
+    scored in: of those whose image holds its centre, the one nearest its optical axis
+    (camera FRD +x); -1 when none does. One camera: 0 when in its image."""
+    best, best_cos = -1, -math.inf
+    b = normalize(rel_ned_m)
+    for cid, cam in enumerate(cameras):
+        R_ned_from_cam = R_ned_from_body @ cam.R_body_from_cam
+        px = cam.pixel_from_bearing_cam(R_ned_from_cam.T @ b)
+        if not np.all(np.isfinite(px)) or not bool(cam.in_image(px)):
+            continue
+        if len(cameras) == 1:
+            return cid
+        cos = float(R_ned_from_cam[:, 0] @ b)  # the optical axis: camera FRD x
+        if cos > best_cos:
+            best, best_cos = cid, cos
+    return best
+
+
+@dataclass
+class Handover:
+    """Per truth object: the cameras it was scored in (:func:`view_camera`) and the track
+    ids matched to it. :meth:`figure` is the handover figure: for each object scored in
+    more than one camera, how many ids it got (one is the target: it kept its track)."""
+
+    views: dict[Hashable, set[int]] = field(default_factory=dict)
+    track_ids: dict[Hashable, set[Hashable]] = field(default_factory=dict)
+
+    def add(self, obj: Hashable, camera_id: int, track_id: Hashable | None) -> None:
+        """Object ``obj`` scored in ``camera_id``, matched to ``track_id`` (None: not)."""
+        self.views.setdefault(obj, set()).add(camera_id)
+        if track_id is not None:
+            self.track_ids.setdefault(obj, set()).add(track_id)
+
+    def figure(self) -> dict[Hashable, int]:
+        return {
+            obj: len(self.track_ids.get(obj, ()))
+            for obj, cams in self.views.items()
+            if len(cams) > 1
+        }

@@ -42,8 +42,10 @@ from typing import Any
 import numpy as np
 
 from ..config import AppConfig
+from ..core.camera import CameraModel
 from ..core.pipeline import FrameResult
 from ..io.aio import monotonic_us
+from ..io.cameras.base import FrameSource
 from ..io.scoring import match_truth
 from ..io.transports import open_transport
 from ..mavlink.copter_modes import mode_name, mode_number
@@ -51,6 +53,7 @@ from ..mavlink.endpoint import CompanionEndpoint
 from ..service.daemon import CameraInput, DaemonSummary
 from ..service.runner import open_service
 from ..sim.scene.autopilot_camera import AutopilotSimCamera, Launch, SceneConfig
+from ..sim.scene.cameras import rig_cameras
 from .ardupilot_vehicle import ArduPilotSitl
 
 log = logging.getLogger(__name__)
@@ -92,6 +95,16 @@ class FlightPlanAP:
     min_conf_pct: int = 50  # TCMA_MIN_CONF
     # the daemon's TCM_* parameters, set from the ground station through ArduPilot
     companion_params: tuple[tuple[str, float], ...] = ()
+    # A camera rig (sim.scene.cameras.RIGS, or "config": the configuration's [[cameras]];
+    # None: its one camera): one daemon camera per rig camera, all rendered from the pose
+    # the autopilot reports.
+    rig: str | None = None
+    # Turn: this long after the ball's launch, the vehicle turns its nose by turn_deg
+    # (positive clockwise) and flies on along the same velocity, so that a ball held at
+    # a constant bearing crosses from one camera's view into another's. The flight then
+    # commands its heading (heading_deg) from the start.
+    turn_deg: float = 0.0
+    turn_after_s: float = 1.5
 
 
 @dataclass(frozen=True)
@@ -122,6 +135,7 @@ class AlarmFrame:
     ttc_confidence_pct: int
     state: str
     reason: str
+    camera_id: int = 0
 
 
 class _Recorder:
@@ -137,6 +151,8 @@ class _Recorder:
         self.matched = 0
         self.trace: list[TraceRow] = []
         self._last: tuple[int, float] | None = None  # (t_us, range_m) of the last frame
+        self.matched_by_camera: Counter[int] = Counter()  # a rig: frames matched per camera
+        self.first_matched_us: dict[int, int] = {}  # a rig: camera id -> first match
 
     def __call__(self, camera_id: int, result: FrameResult) -> None:
         now = monotonic_us()
@@ -149,7 +165,9 @@ class _Recorder:
                 and conf >= self.plan.min_conf_pct
             ):
                 self.alarms.append(
-                    AlarmFrame(now, result.t_us, o.track_id, o.ttc_s, conf, o.state, o.reason)
+                    AlarmFrame(
+                        now, result.t_us, o.track_id, o.ttc_s, conf, o.state, o.reason, camera_id
+                    )
                 )
         truth = self.camera.truth_at(result.t_us)
         if truth.pos_ned_m is None or not truth.ball_centres_ned_m:
@@ -158,13 +176,18 @@ class _Recorder:
         rel = np.asarray(centre) - np.asarray(truth.pos_ned_m)
         dist = float(np.linalg.norm(rel))
         self.min_clearance_m = min(self.min_clearance_m, dist - radius)
+        objs = [o for o in result.objects if o.detected]
+        m = match_truth(rel, radius, [o.bearing_ned for o in objs], set(), MATCH_GATE_RAD)
+        if m.matched:
+            self.matched_by_camera[camera_id] += 1
+            self.first_matched_us.setdefault(camera_id, result.t_us)
+        elif camera_id != 0:
+            return  # a rig's other cameras: a trace row only where they see the ball
         ttc_true = math.inf
         if self._last is not None and result.t_us > self._last[0]:
             closing = (self._last[1] - dist) / ((result.t_us - self._last[0]) * 1e-6)
             ttc_true = dist / closing if closing > 1e-3 else math.inf
         self._last = (result.t_us, dist)
-        objs = [o for o in result.objects if o.detected]
-        m = match_truth(rel, radius, [o.bearing_ned for o in objs], set(), MATCH_GATE_RAD)
         alpha = m.alpha_true_rad
         nan = math.nan
         if m.matched:
@@ -227,6 +250,12 @@ class FlightReport:
     # time_boot_ms: (rate, most it fell behind s); None without two such messages. A
     # starved SITL's simulated clock falls behind, and TIMESYNC'd stamps drift from it.
     sitl_clock: tuple[float, float] | None = None
+    # A rig: its cameras' names (camera id order), the frames in which each matched the
+    # ball and when it first did (s, the companion clock), and when the vehicle turned.
+    cameras: tuple[str, ...] = ()
+    matched_by_camera: dict[int, int] = field(default_factory=dict)
+    first_matched_s: dict[int, float] = field(default_factory=dict)
+    turn_s: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -234,6 +263,12 @@ class FlightReport:
 
     def rel(self, t_s: float | None) -> float | None:
         return None if t_s is None else t_s - self.t0_s
+
+    @property
+    def ball_track_ids(self) -> list[int]:
+        """The daemon's track ids matched to the ball, in order (a rig: one if the
+        handover from camera to camera kept the id)."""
+        return sorted({row.track_id for row in self.trace if row.track_id >= 0})
 
     @property
     def first_alarm_s(self) -> float | None:
@@ -300,10 +335,30 @@ class FlightReport:
                 f"  ball launched {at(la.launch_us / 1e6)} at {rng:.1f} m, predicted contact"
                 f" {at(la.contact_us / 1e6)}"
             )
+        if len(self.cameras) > 1:
+            seen = ", ".join(
+                f"{name} {self.matched_by_camera.get(cid, 0)} frames"
+                + (
+                    f" (from {at(self.first_matched_s[cid])})"
+                    if cid in self.first_matched_s
+                    else ""
+                )
+                for cid, name in enumerate(self.cameras)
+            )
+            turned = (
+                f"; turned {self.plan.turn_deg:+.0f}° {at(self.turn_s)}"
+                if self.turn_s is not None
+                else ""
+            )
+            out.append(
+                f"  rig {self.plan.rig}: the ball matched in {seen}{turned}; its track ids"
+                f" {self.ball_track_ids} (one: the handover kept it)"
+            )
         if self.alarms:
             a = self.alarms[0]
+            cam = f" camera {self.cameras[a.camera_id]}," if len(self.cameras) > 1 else ""
             out.append(
-                f"  first alarming frame {at(self.first_alarm_s)}: track {a.track_id}, TTC"
+                f"  first alarming frame {at(self.first_alarm_s)}:{cam} track {a.track_id}, TTC"
                 f" {a.ttc_s:.2f} s, ttc_confidence {a.ttc_confidence_pct}%, state {a.state}"
                 + (f" ({a.reason})" if a.reason else "")
                 + f"; {len(self.alarms)} alarming frames over"
@@ -406,21 +461,22 @@ def _text_time(texts: list[tuple[float, str]], pattern: str) -> tuple[float | No
 async def daemon_on_sitl(
     config: AppConfig,
     sitl: ArduPilotSitl,
-    camera: AutopilotSimCamera,
+    camera: AutopilotSimCamera | list[CameraInput],
     state_dir: str,
     **daemon_kwargs: Any,
 ) -> AsyncIterator[tuple[asyncio.Task[DaemonSummary], CompanionEndpoint]]:
-    """The daemon on the SITL's SERIAL1 with ``camera``, its state in ``state_dir``, as it
-    runs on a drone: yields its task and endpoint; stopped (its state persisted, its link
-    closed) on exit. The task's result is the run's summary, or the exception that ended
-    it."""
+    """The daemon on the SITL's SERIAL1 with ``camera`` (the configuration's camera; or
+    the cameras of a rig, as given), its state in ``state_dir``, as it runs on a drone:
+    yields its task and endpoint; stopped (its state persisted, its link closed) on exit.
+    The task's result is the run's summary, or the exception that ended it."""
     link = open_transport(sitl.serial1_url)
     await link.open()
     cam = config.camera
+    cameras = camera if isinstance(camera, list) else [CameraInput(cam.name, cam.model, camera)]
     try:
         async with open_service(
             config,
-            [CameraInput(cam.name, cam.model, camera)],
+            cameras,
             state_dir=state_dir,
             transport=link,
             **daemon_kwargs,
@@ -448,16 +504,33 @@ async def fly_scene(
     start the daemon and the camera, take off (or go back to GUIDED), fly steadily until
     the scene's ball is launched and the applet brakes, watch, stop the daemon."""
     cam_cfg = config.camera
+    lenses: list[tuple[str, CameraModel]]
+    if plan.rig is None:
+        lenses = [(cam_cfg.name, cam_cfg.model)]
+    elif plan.rig == CONFIG_RIG:
+        lenses = [(c.name, c.model) for c in config.cameras]
+    else:
+        lenses = rig_cameras(plan.rig)
     camera = AutopilotSimCamera(
-        cam_cfg.model,
+        lenses[0][1],
         sitl.serial2_url,
         plan.scene,
         fps=cam_cfg.source.fps,
         heading_deg=plan.heading_deg,
         seed=cam_cfg.source.sim_seed,
         noise_dn=cam_cfg.source.sim_noise_dn,
+        views=lenses[1:],
     )
+    fps = cam_cfg.source.fps
+    cameras: AutopilotSimCamera | list[CameraInput] = camera
+    if plan.rig is not None:
+        sources: list[FrameSource] = [camera, *camera.views]
+        cameras = [
+            CameraInput(name, model, src, fps=fps)
+            for (name, model), src in zip(lenses, sources, strict=True)
+        ]
     recorder = _Recorder(camera, plan)
+    turn_t: float | None = None
     t0 = time.monotonic()
     pilot_t: float | None = None
     summary: DaemonSummary | None = None
@@ -465,7 +538,7 @@ async def fly_scene(
     with contextlib.ExitStack() as stack:
         sdir = state_dir or stack.enter_context(tempfile.TemporaryDirectory(prefix="tcm-ap-"))
         async with daemon_on_sitl(
-            config, sitl, camera, sdir, on_result=recorder, on_status=on_status
+            config, sitl, cameras, sdir, on_result=recorder, on_status=on_status
         ) as (task, endpoint):
             if not await _until(lambda: recorder.frames >= 10 or task.done(), 20.0):
                 failures.append("the daemon processed no frames within 20 s")
@@ -484,13 +557,23 @@ async def fly_scene(
             else:
                 await asyncio.to_thread(sitl.takeoff, plan.altitude_m)
             h = math.radians(plan.heading_deg)
+            vn, ve = plan.speed_mps * math.cos(h), plan.speed_mps * math.sin(h)
+            steered = plan.rig is not None or plan.turn_deg != 0.0
             t0 = time.monotonic()
-            sitl.fly_velocity(plan.speed_mps * math.cos(h), plan.speed_mps * math.sin(h), 0.0)
+            sitl.fly_velocity(vn, ve, 0.0, h if steered else None)
             if not await _until(lambda: camera.launch is not None, 15.0):
                 failures.append("the ball was not launched within 15 s of steady flight")
             else:
                 launch = camera.launch
                 assert launch is not None
+                if plan.turn_deg != 0.0:
+                    turn_at_s = launch.launch_us / 1e6 + plan.turn_after_s
+                    await _until(
+                        lambda: sitl.gcs.mode == BRAKE, max(0.0, turn_at_s - time.monotonic())
+                    )
+                    if sitl.gcs.mode != BRAKE:
+                        turn_t = time.monotonic()
+                        sitl.fly_velocity(vn, ve, 0.0, h + math.radians(plan.turn_deg))
                 left_s = launch.contact_us / 1e6 + 2.0 - time.monotonic()
                 await _until(lambda: sitl.gcs.mode == BRAKE, max(0.5, left_s))
             sitl.stop_velocity()
@@ -559,6 +642,10 @@ async def fly_scene(
         sitl_clock=_sitl_clock(
             [(m.t_s, m.msg.time_boot_ms) for m in sitl.gcs.messages("LOCAL_POSITION_NED", t0)]
         ),
+        cameras=tuple(name for name, _ in lenses) if plan.rig is not None else (),
+        matched_by_camera=dict(recorder.matched_by_camera),
+        first_matched_s={c: t / 1e6 for c, t in recorder.first_matched_us.items()},
+        turn_s=turn_t,
     )
     report.failures += _judge(report)
     return report
@@ -597,20 +684,49 @@ def _judge(r: FlightReport) -> list[str]:
     return out
 
 
+#: ``FlightPlanAP.rig``: the configuration's ``[[cameras]]``.
+CONFIG_RIG = "config"
+#: A rig flight's turn (degrees, clockwise) after the crossing ball's launch: the ball
+#: comes in at 37° right of the nose (in the front camera; the right one starts at 40°),
+#: and after the turn at 77° (right camera) for front-right and quad; at 147° (rear
+#: camera, crossing the unseen side) for front-back.
+RIG_TURN_DEG = {"front-right": -40.0, "quad": -40.0, "front-back": -110.0, "panorama": 0.0}
+
+
+def rig_plan(
+    scene: str = "crossing", rig: str = "front-right", pilot_mode: str | None = None
+) -> FlightPlanAP:
+    """The flight of ``scene`` with camera rig ``rig``: the crossing ball appears in one
+    camera and, after the vehicle's turn (:data:`RIG_TURN_DEG`), reaches it through
+    another (``rig`` :data:`CONFIG_RIG`, the configuration's cameras: no turn)."""
+    turn = RIG_TURN_DEG.get(rig, 0.0) if scene == "crossing" else 0.0
+    return FlightPlanAP(
+        scene=SceneConfig(kind=scene),  # type: ignore[arg-type]
+        pilot_mode=pilot_mode,
+        rig=rig,
+        turn_deg=turn,
+    )
+
+
 async def run_ardupilot_sitl(
     config: AppConfig,
     scene: str = "crossing",
     *,
     on_status: Callable[[str], None] | None = None,
     pilot_mode: str | None = None,
+    rig: str | None = None,
 ) -> FlightReport:
-    """Start ArduCopter SITL with the applet, fly ``scene`` once, stop it."""
+    """Start ArduCopter SITL with the applet, fly ``scene`` once (with camera rig ``rig``:
+    :func:`rig_plan`), stop it."""
     if scene not in SCENES:
         raise ValueError(f"scene must be one of {', '.join(SCENES)}, got {scene!r}")
     sitl = ArduPilotSitl(params=SITL_PARAMS, scripts=[APPLET])
     await asyncio.to_thread(sitl.start)
     try:
-        plan = FlightPlanAP(scene=SceneConfig(kind=scene), pilot_mode=pilot_mode)  # type: ignore[arg-type]
+        if rig is not None:
+            plan = rig_plan(scene, rig, pilot_mode)
+        else:
+            plan = FlightPlanAP(scene=SceneConfig(kind=scene), pilot_mode=pilot_mode)  # type: ignore[arg-type]
         report = await fly_scene(config, sitl, plan, on_status=on_status)
         if not report.ok:
             log.warning("SITL console tail:\n%s", sitl.console_tail(20))

@@ -43,17 +43,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
-
 from ..config import AppConfig
 from ..core.camera import CameraModel
 from ..core.classify import ClassifierConfig
-from ..core.frames import normalize
 from ..core.pipeline import FrameResult
 from ..flight_log_setup import start_flight_log
 from ..io.aio import monotonic_us
+from ..io.cameras.settings import CameraSourceConfig
 from ..io.detector_model import read_detector_model
-from ..io.scoring import Score, match_truth, warmed_up
+from ..io.scoring import Handover, Score, match_truth, view_camera, warmed_up
 from ..io.transports import Transport, open_transport
 from ..service.host import CameraInput, DaemonSummary, NotifierLike, run_length_text
 from ..service.runner import ServiceState, StartLog, open_service, open_service_state
@@ -72,6 +70,11 @@ Clock = Literal["real", "virtual"]
 #: :meth:`~tcm_companion.sim.scene.truth_camera.SimulatedCamera.for_mock`: the sensor noise, and
 #: in virtual time the simulated clock and a sleep that does not sleep.
 CameraFactory = Callable[..., Any]
+#: A rig camera that dies: ``(camera name, seconds after the start)``; None: none;
+#: ``"scenario"``: the scenario's own (:data:`~tcm_companion.sim.scene.names.CAMERA_LOSS`).
+CameraLoss = tuple[str, float] | None | Literal["scenario"]
+#: ``rig=CONFIG_RIG``: fly the configuration's ``[[cameras]]``, each a simulated camera.
+CONFIG_RIG = "config"
 
 
 @dataclass
@@ -100,6 +103,13 @@ class SitlReport:
     # "" ran its planned time; "stop": stopped early by its caller; the signal's name
     # ("SIGINT") when the command line knows which one stopped it.
     stopped_by: str = ""
+    # A rig (several cameras): each camera's name and its share of the score (objects
+    # scored in the camera that saw them nearest its axis), and the handover figure:
+    # plan object index -> track ids matched to it, for the objects seen by more than
+    # one camera (target 1).
+    camera_names: tuple[str, ...] = ()
+    camera_scores: tuple[Score, ...] = ()
+    handover: dict[int, int] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -150,6 +160,14 @@ class SitlReport:
             f" withheld {s.watchdog_withheld}",
             f"  results: sha256 {self.results_sha256[:16]} of {self.results_frames} frames",
         ]
+        if len(self.camera_scores) > 1:
+            for name, cs in zip(self.camera_names, self.camera_scores, strict=True):
+                out.append(f"  camera {name}: {_score_text(cs)}")
+            if self.handover:
+                ids = ", ".join(f"object {i + 1}: {n}" for i, n in self.handover.items())
+                out.append(f"  handover: track ids per object seen by several cameras: {ids}")
+            else:
+                out.append("  handover: no object was seen by more than one camera")
         if s.link:
             out.append(f"  link: {s.link}")
         if self.stale_excused or self.loop_lag_max_ms >= 500.0:
@@ -177,51 +195,107 @@ class SitlReport:
         return out
 
 
+def _score_text(sc: Score) -> str:
+    """One camera's share of a rig's score, on one line."""
+    acc = "no decision" if not sc.decided else f"accuracy {100 * sc.accuracy:.1f}%"
+    cov = "n/a" if not sc.scored else f"{100 * sc.coverage:.1f}%"
+    return (
+        f"{sc.matched}/{sc.truth_frames} object-frames matched; {acc} of {sc.decided}"
+        f" decided, coverage {cov}; states {dict(sc.by_state) or 'none'}"
+    )
+
+
+#: Another camera's objects count for a frame's matching when its frame was captured
+#: within this of the frame's: the same frame cycle, or the one before when that camera's
+#: frame of this cycle is processed after this one (a frame period at 25 Hz and a
+#: little). The rig reports an object from one camera, not necessarily the one it is
+#: scored in.
+_SAME_CYCLE_US = 45_000
+
+
 class _Scorer:
     """Scores each frame's objects against the mock's true vehicle and balls
     (:mod:`~tcm_companion.io.scoring`: after the classifier ``cls``'s interval from
     ``start_mono_us``), and hashes every result (the digest two virtual runs must agree
-    on)."""
+    on).
+
+    A rig (several ``cameras``): an object-frame is scored once per frame cycle, in the
+    frame of the camera that sees the object nearest its optical axis (the object's
+    *view*), matched against the objects of every camera in that cycle (bearings are NED,
+    so any camera may have measured it). ``per_camera`` tallies each view's share (their
+    sum is ``score``); ``handovers`` collects the ids matched to each object, for the
+    handover figure (:meth:`handover`). One camera: exactly the single-camera score.
+    ``rig_track_ids``: the ids are rig-wide (a :class:`~tcm_companion.core.rig.RigTracker`
+    fuses the cameras); otherwise an id is ``(camera id, track id)``.
+    """
 
     def __init__(
-        self, mock: Any, camera: CameraModel, start_mono_us: int, cls: ClassifierConfig
+        self,
+        mock: Any,
+        camera: CameraModel | Sequence[CameraModel],
+        start_mono_us: int,
+        cls: ClassifierConfig,
+        *,
+        rig_track_ids: bool = False,
     ) -> None:
         self.mock = mock
-        self.camera = camera
+        self.cameras: list[CameraModel] = list(camera) if isinstance(camera, Sequence) else [camera]
+        self.camera = self.cameras[0]
         self.start_mono_us = start_mono_us
         self.cls = cls
         self.score = Score(warmup_s=cls.interval_s)
+        self.per_camera = [Score(warmup_s=cls.interval_s) for _ in self.cameras]
+        self.rig_track_ids = rig_track_ids
         # plan object index -> when it was first in view, and first matched by an object
         self.first_in_view_us: dict[int, int] = {}
         self.first_matched_us: dict[int, int] = {}
         self.decidable_after_us = round(1e6 * (cls.interval_s + cls.hold_s))
         self.digest = hashlib.sha256()
         self.frames = 0
+        # per camera: its latest frame's capture time and detected objects
+        self._latest: list[tuple[int, list[Any]]] = [(0, []) for _ in self.cameras]
+        self.handovers = Handover()  # by plan object index
 
     def __call__(self, camera_id: int, result: FrameResult) -> None:
         self.digest.update(frame_result_key(camera_id, result))
         self.frames += 1
         truth = self.mock.vehicle_truth(result.t_us)
-        R_cam_from_ned = (truth.R_ned_from_body @ self.camera.R_body_from_cam).T
         warm = warmed_up((result.t_us - self.start_mono_us) / 1e6, self.cls)
-        objs = [o for o in result.objects if o.detected]
-        bearings = [o.bearing_ned for o in objs]
+        own = [o for o in result.objects if o.detected]
+        self._latest[camera_id] = (result.t_us, own)
+        objs = [(camera_id, o) for o in own]
+        for cid, (t_us, others) in enumerate(self._latest):
+            if cid != camera_id and abs(t_us - result.t_us) <= _SAME_CYCLE_US:
+                objs.extend((cid, o) for o in others)
+        bearings = [o.bearing_ned for _, o in objs]
         used: set[int] = set()
-        sc = self.score
+        sc, sc_cam = self.score, self.per_camera[camera_id]
         for i, obj in enumerate(self.mock.plan.objects):  # balls and targets of any shape
             rel = obj.centre_ned_m(truth.t_s) - truth.position_ned_m
-            px = self.camera.pixel_from_bearing_cam(R_cam_from_ned @ normalize(rel))
-            if not np.all(np.isfinite(px)) or not bool(self.camera.in_image(px)):
+            if view_camera(self.cameras, truth.R_ned_from_body, rel) != camera_id:
                 continue
             # Could it have been decided? Once the companion has it: after the interval
             # and the hold from then; until then, as long from when it came into view.
             self.first_in_view_us.setdefault(i, result.t_us)
             m = match_truth(rel, obj.bounding_radius_m, bearings, used)
+            state, tid = None, None
             if m.matched:
                 self.first_matched_us.setdefault(i, result.t_us)
+                src, o = objs[m.index]
+                state = o.state
+                tid = o.track_id if self.rig_track_ids else (src, o.track_id)
+            self.handovers.add(i, camera_id, tid)
             first_us = self.first_matched_us.get(i, self.first_in_view_us[i])
             overdue = result.t_us - first_us >= self.decidable_after_us
-            sc.add(warm, objs[m.index].state if m.matched else None, obj.moving, overdue)
+            sc.add(warm, state, obj.moving, overdue)
+            if len(self.cameras) > 1:
+                sc_cam.add(warm, state, obj.moving, overdue)
+
+    def handover(self) -> dict[int, int]:
+        """Track ids per object that was viewed by more than one camera (plan object
+        index -> how many ids were matched to it; the target is 1)."""
+        fig = self.handovers.figure()
+        return {i: fig[i] for i in sorted(k for k in fig if isinstance(k, int))}
 
 
 class _LoopLag:
@@ -273,23 +347,82 @@ def _sim_camera(
     mock: Any,
     model: CameraModel | None,
     camera_factory: CameraFactory | None,
+    rig: str = "panorama",
+    camera_loss: tuple[str, float] | None = None,
+    start_us: int = 0,
     **camera_kwargs: Any,
 ) -> list[CameraInput]:
-    """The simulated camera (``model``; None: the default 360x220 panorama)."""
+    """The simulated cameras: ``model`` (None: the default 360x220 panorama) or, for a
+    ``rig`` other than the panorama (:func:`~tcm_companion.sim.scene.cameras.rig_cameras`),
+    one camera per rig camera, in rig order, each rendering from the vehicle's true pose
+    at its frame times. ``camera_loss``: ``(camera name, s)``: that camera stops
+    delivering ``s`` seconds after ``start_us`` (the clock's µs) and never comes back.
+    ``rig`` :data:`CONFIG_RIG`: the configuration's ``[[cameras]]`` (names, lenses, frame
+    rates and noise), each simulated."""
     from ..core.camera import Equirectangular
-    from ..sim.scene.truth_camera import SimulatedCamera
+    from ..sim.scene.cameras import rig_cameras
+    from ..sim.scene.truth_camera import DyingCamera, SimulatedCamera
 
-    if model is None:
-        model = Equirectangular(360, 220)
-
-    fps = config.camera.source.fps
-    camera_kwargs.setdefault("noise_dn", config.camera.source.sim_noise_dn)
-    camera_kwargs.setdefault("fps", fps)
-    if camera_factory is not None:
-        source = camera_factory(mock, model, **camera_kwargs)
+    # (name, lens, source name or None: the scenario's, settings)
+    lenses: list[tuple[str, CameraModel, str | None, CameraSourceConfig]]
+    if rig == "panorama":
+        lens0 = model if model is not None else Equirectangular(360, 220)
+        lenses = [("camera0", lens0, None, config.camera.source)]
+    elif model is not None:
+        raise ValueError(f"rig {rig!r} has its own cameras: do not pass camera_model")
+    elif rig == CONFIG_RIG:
+        lenses = [(c.name, c.model, f"sim-{c.name}", c.source) for c in config.cameras]
     else:
-        source = SimulatedCamera.for_mock(model, mock, **camera_kwargs)
-    return [CameraInput("camera0", model, source, fps=fps)]
+        src = config.camera.source
+        lenses = [(n, lens, f"sim-{n}", src) for n, lens in rig_cameras(rig)]
+    names = [n for n, _, _, _ in lenses]
+    if camera_loss is not None and camera_loss[0] not in names:
+        raise ValueError(
+            f"camera {camera_loss[0]!r} cannot die: rig {rig!r} has {', '.join(names)}"
+        )
+    out = []
+    for name, lens, source_name, settings in lenses:
+        kwargs = dict(camera_kwargs)
+        kwargs.setdefault("noise_dn", settings.sim_noise_dn)
+        kwargs.setdefault("fps", settings.fps)
+        if source_name is not None:
+            kwargs["name"] = source_name
+        if camera_factory is not None:
+            source = camera_factory(mock, lens, **kwargs)
+        else:
+            source = SimulatedCamera.for_mock(lens, mock, **kwargs)
+        if camera_loss is not None and camera_loss[0] == name:
+            clock_us = camera_kwargs.get("clock_us", monotonic_us)
+            source = DyingCamera(source, start_us + round(camera_loss[1] * 1e6), clock_us)
+        out.append(CameraInput(name, lens, source, fps=settings.fps))
+    return out
+
+
+def _camera_loss(config: AppConfig, rig: str, camera_loss: CameraLoss) -> tuple[str, float] | None:
+    """``camera_loss`` as given, or (``"scenario"``) the scenario's own
+    (:data:`~tcm_companion.sim.scene.names.CAMERA_LOSS`) on a rig of several cameras that
+    has the camera (else a warning: none dies)."""
+    from ..sim.scene.cameras import rig_cameras
+    from ..sim.scene.names import CAMERA_LOSS
+
+    if camera_loss != "scenario":
+        return camera_loss
+    loss = CAMERA_LOSS.get(config.sim.scenario.upper())
+    if rig == "panorama" or loss is None:
+        return None
+    names = (
+        [c.name for c in config.cameras] if rig == CONFIG_RIG else [n for n, _ in rig_cameras(rig)]
+    )
+    if loss[0] not in names:
+        log.warning(
+            "%s: the %s camera dies %g s in, but this rig has %s: no camera dies",
+            config.sim.scenario.upper(),
+            loss[0],
+            loss[1],
+            ", ".join(names),
+        )
+        return None
+    return loss
 
 
 @dataclass
@@ -302,6 +435,7 @@ class _Run:
     min_accuracy: float | None
     scorer: _Scorer
     state: ServiceState
+    camera_names: tuple[str, ...] = ()
 
 
 def _start_log(
@@ -406,6 +540,9 @@ def _report(
         statustexts=run.state.endpoint.statustexts_queued,
         planned_s=planned_s,
         stopped_by="stop" if stopped_early else "",
+        camera_names=run.camera_names,
+        camera_scores=tuple(scorer.per_camera) if len(scorer.cameras) > 1 else (),
+        handover=scorer.handover() if len(scorer.cameras) > 1 else {},
     )
 
 
@@ -429,6 +566,8 @@ async def run_sitl(
     model: VirtualTimeModel | None = None,
     schedule: Sequence[tuple[float, Callable[[int], None]]] = (),
     link_up: Callable[[float], bool] | None = None,
+    rig: str = "panorama",
+    camera_loss: CameraLoss = "scenario",
 ) -> SitlReport:
     """Fly ``config.sim.scenario`` for ``duration_s`` (None: until ``stop``).
 
@@ -439,6 +578,10 @@ async def run_sitl(
     camera fail), and in real time ``links`` — ``(mock side, daemon side)``, opened — in
     place of the loopback UDP pair (to cut the link). ``log_dir``: write the flight log
     there (``[logging]`` settings). ``min_accuracy``: the floor (None: not judged).
+    ``rig``: the simulated cameras (:data:`~tcm_companion.sim.scene.cameras.RIGS`; the
+    default is today's one panorama), one companion camera each, in rig order.
+    ``camera_loss``: ``(camera name, s)``: that rig camera dies ``s`` seconds in (None:
+    none; ``"scenario"``: the scenario's own, :data:`~tcm_companion.sim.scene.names.CAMERA_LOSS`).
     """
     if clock == "virtual":
         if cameras is not None or links is not None:
@@ -459,6 +602,8 @@ async def run_sitl(
             model=model,
             schedule=schedule,
             link_up=link_up,
+            rig=rig,
+            camera_loss=camera_loss,
         )
     if clock != "real":
         raise ValueError(f"clock must be 'real' or 'virtual', got {clock!r}")
@@ -473,7 +618,15 @@ async def run_sitl(
     else:
         mcfg = mock.config
     if cameras is None:
-        cameras = _sim_camera(config, mock, camera_model, camera_factory)
+        cameras = _sim_camera(
+            config,
+            mock,
+            camera_model,
+            camera_factory,
+            rig,
+            _camera_loss(config, rig, camera_loss),
+            now_us,
+        )
 
     with _state_directory(state_dir, config) as sdir:
         if links is not None:
@@ -484,7 +637,14 @@ async def run_sitl(
             host, port = mock_link.local_address  # type: ignore[attr-defined]
             daemon_link = open_transport(f"udpout:{host}:{port}")
             await daemon_link.open()
-        scorer = _Scorer(mock, cameras[0].model, now_us, config.pipeline.classifier)
+        # Two cameras or more: the Companion fuses them (core.rig), its ids are rig-wide.
+        scorer = _Scorer(
+            mock,
+            [c.model for c in cameras],
+            now_us,
+            config.pipeline.classifier,
+            rig_track_ids=len(cameras) > 1,
+        )
         lag = _LoopLag()
         lag_task = asyncio.create_task(lag.run(), name="loop lag")
         ran_out: list[bool] = []  # the duration ended the run (not its caller's stop)
@@ -500,7 +660,14 @@ async def run_sitl(
                 on_result=scorer,
                 on_status=on_status,
             ) as service:
-                run = _Run(mock, timer, min_accuracy, scorer, service.state)
+                run = _Run(
+                    mock,
+                    timer,
+                    min_accuracy,
+                    scorer,
+                    service.state,
+                    tuple(c.name for c in cameras),
+                )
                 mock_stop = asyncio.Event()
                 mock_task = asyncio.create_task(
                     run_mock_autopilot(mock_link, mcfg, mock_stop, autopilot=mock), name="mock"
@@ -561,11 +728,14 @@ def run_sitl_virtual(
     model: VirtualTimeModel | None = None,
     schedule: Sequence[tuple[float, Callable[[int], None]]] = (),
     link_up: Callable[[float], bool] | None = None,
+    rig: str = "panorama",
+    camera_loss: CameraLoss = "scenario",
 ) -> SitlReport:
     """SITL in virtual time (:mod:`.virtual`): the same arguments as
     :func:`run_sitl`, plus ``model`` (what virtual time assumes: start, link latency,
     pipeline time), ``schedule`` (``(run time s, fn(now_mono_us))`` calls, e.g. a mock
-    reboot) and ``link_up(run time s)`` (False: the radio is out). A passed ``mock``
+    reboot), ``link_up(run time s)`` (False: the radio is out), ``rig`` and
+    ``camera_loss`` (see :func:`run_sitl`). A passed ``mock``
     sets the start time (its latest time); otherwise the mock starts at
     ``model.start_mono_us`` with Unix time ``model.unix_us_at_start``."""
     import cv2
@@ -590,7 +760,15 @@ def run_sitl_virtual(
         return holder[0].now_us() if holder else start
 
     cameras = _sim_camera(
-        config, mock, camera_model, camera_factory, clock_us=now_us, sleep=no_sleep
+        config,
+        mock,
+        camera_model,
+        camera_factory,
+        rig,
+        _camera_loss(config, rig, camera_loss),
+        start,
+        clock_us=now_us,
+        sleep=no_sleep,
     )
     if config.daemon.opencv_threads:
         cv2.setNumThreads(config.daemon.opencv_threads)
@@ -614,8 +792,15 @@ def run_sitl_virtual(
                 mock,
                 timer,
                 min_accuracy,
-                _Scorer(mock, cameras[0].model, start, config.pipeline.classifier),
+                _Scorer(
+                    mock,
+                    [c.model for c in cameras],
+                    start,
+                    config.pipeline.classifier,
+                    rig_track_ids=len(cameras) > 1,  # the Companion fuses (core.rig)
+                ),
                 state,
+                tuple(c.name for c in cameras),
             )
             companion = Companion(
                 [c.model for c in cameras],

@@ -79,7 +79,7 @@ import math
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -104,6 +104,7 @@ if TYPE_CHECKING:
 __all__ = [
     "AutopilotSimCamera",
     "Launch",
+    "RigView",
     "SceneConfig",
     "SceneTruth",
     "check_url",
@@ -445,6 +446,7 @@ class AutopilotSimCamera(FrameSource):
         clock_us: Callable[[], int] = monotonic_us,
         fisheye_fov_deg: float = 180.0,
         name: str | None = None,
+        views: Sequence[tuple[str, CameraModel]] = (),
     ) -> None:
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"fps must be positive, got {fps!r}")
@@ -501,6 +503,8 @@ class AutopilotSimCamera(FrameSource):
         self._clock_resets = 0
         self._past_messages: Counter[str] = Counter()
         self._past_link_stats: Counter[str] = Counter()
+        # A rig: the other cameras, rendered from this one's pose at its ticks.
+        self.views = [RigView(self, view_name, model) for view_name, model in views]
 
     # -- properties for callers --------------------------------------------------------
     @property
@@ -602,6 +606,8 @@ class AutopilotSimCamera(FrameSource):
             self.no_pose += 1
             self._pose_since_us = None
             self._recent_vel.clear()
+            for view in self.views:
+                view.deliver(None, tick_us)
             return None, tick_us
         if self._pose_since_us is None:
             self._pose_since_us = tick_us
@@ -622,6 +628,8 @@ class AutopilotSimCamera(FrameSource):
         self.render_s_total += time.perf_counter() - t_render
         self.rendered += 1
         self._truth.append((tick_us, pos_ned_m, R_ned_from_body))
+        for view in self.views:
+            view.render(t_s, pos_ned_m, R_ned_from_body, tick_us)
         return image, tick_us
 
     def interrupt(self) -> None:
@@ -632,6 +640,8 @@ class AutopilotSimCamera(FrameSource):
     def close(self) -> None:
         self._open = False
         self._close_link()
+        for view in self.views:
+            view.deliver(None, None)  # wakes a view waiting for a frame
 
     # -- scoring -------------------------------------------------------------------------
     def truth_at(self, t_us: int) -> SceneTruth:
@@ -778,3 +788,107 @@ class AutopilotSimCamera(FrameSource):
         if launch is None or t_us < launch.launch_us:
             return (), 0.0
         return (launch.ball,), (t_us - launch.launch_us) / 1e6
+
+
+class RigView(FrameSource):
+    """Another camera of a rig on the :class:`AutopilotSimCamera` ``primary``: its lens
+    ``camera_model`` rendered from the primary's pose at the primary's ticks (one pose, one
+    clock for the whole rig), by the primary's reader thread, right after its own image.
+    ``read()`` returns the newest frame not yet returned (an older one not read in time is
+    dropped, counted in ``skipped``), waiting for it at most ``wait_s``; a tick without a
+    pose is ``(None, tick)``, as from the primary. Its field and balls are the primary's.
+    """
+
+    live = True
+
+    def __init__(
+        self,
+        primary: AutopilotSimCamera,
+        name: str,
+        camera_model: CameraModel,
+        wait_s: float = 0.5,
+    ) -> None:
+        super().__init__(f"{primary.name}-{name}", camera_model.width, camera_model.height)
+        self.primary = primary
+        self.camera_model = camera_model
+        self.wait_s = float(wait_s)
+        self._renderer: Renderer | None = None
+        self._balls_shown: tuple[Ball, ...] | None = None
+        self._cond = threading.Condition()
+        self._slot: tuple[np.ndarray | None, int] | None = None
+        self._last_tick_us: int | None = None
+        self._open = False
+        self._interrupted = False
+        self.rendered = 0
+        self.skipped = 0  # frames replaced before they were read
+        self.render_s_total = 0.0
+
+    # -- from the primary's reader thread ---------------------------------------------
+    def render(
+        self, t_s: float, pos_ned_m: FloatArray, R_ned_from_body: FloatArray, tick_us: int
+    ) -> None:
+        """Render this view of the primary's tick ``tick_us`` and hand it over."""
+        p = self.primary
+        base = p._base_world
+        assert base is not None and p._balls_shown is not None  # the primary rendered
+        if self._renderer is None:
+            from .render import Renderer
+
+            self._renderer = Renderer(
+                base.with_balls(p._balls_shown),
+                self.camera_model,
+                fisheye_fov_deg=p.fisheye_fov_deg,
+                seed=p.seed,
+            )
+            self._balls_shown = p._balls_shown
+        elif p._balls_shown != self._balls_shown:
+            self._renderer.world = base.with_balls(p._balls_shown)
+            self._balls_shown = p._balls_shown
+        t = time.perf_counter()
+        image = self._renderer.render(
+            t_s, pos_ned_m, R_ned_from_body, noise_dn=p.noise_dn, rng=p._rng
+        )
+        self.render_s_total += time.perf_counter() - t
+        self.rendered += 1
+        self.deliver(image, tick_us)
+
+    def deliver(self, image: np.ndarray | None, tick_us: int | None) -> None:
+        """Put one frame in the slot (``tick_us`` None: the primary closed; wake up)."""
+        with self._cond:
+            if tick_us is not None:
+                if self._slot is not None:
+                    self.skipped += 1
+                self._slot = (image, tick_us)
+            self._cond.notify_all()
+
+    # -- FrameSource ---------------------------------------------------------------------
+    def open(self) -> None:
+        with self._cond:
+            self._open, self._interrupted, self._slot = True, False, None
+
+    def read(self) -> tuple[np.ndarray | None, int | None]:
+        if not self._open:
+            raise CameraGone(f"camera {self.name}: not open")
+        deadline = time.monotonic() + self.wait_s
+        with self._cond:
+            while self._slot is None and not self._interrupted:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(left)
+            if self._slot is None:
+                # Nothing from the primary (not started, or it lost its link): an empty
+                # frame now, which the reader counts as rejected.
+                return None, int(self.primary.clock_us())
+            image, tick_us = self._slot
+            self._slot = None
+        self._last_tick_us = tick_us
+        return image, tick_us
+
+    def interrupt(self) -> None:
+        with self._cond:
+            self._interrupted = True
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        self._open = False

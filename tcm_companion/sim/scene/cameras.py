@@ -9,6 +9,7 @@ right-forward (yaw +45°), which covers both the side and straight ahead.
 from __future__ import annotations
 
 from ...core.camera import CameraModel, Equirectangular, Fisheye, Pinhole
+from .names import RIGS as _RIGS
 
 PRESETS = ("panorama", "pinhole", "fisheye")
 
@@ -54,16 +55,18 @@ def preset_camera(
 
 #: The simulator's camera rigs (``--rig``): several cameras on one vehicle, each a
 #: ``(name, lens)``. ``panorama`` is the paper's single 360° camera (the default).
-RIGS = ("panorama", "quad", "front-back")
+RIGS = _RIGS
 
 #: A rig pinhole: 320×240 over 100° horizontally (fx = 160 / tan 50°), level, no
 #: distortion; ``quad`` puts four at 0/90/180/270° (10° overlap between neighbours),
-#: ``front-back`` two at 0 and 180° (the sides 50°..130° unseen at the horizon).
+#: ``front-back`` two at 0 and 180° (the sides 50°..130° unseen at the horizon),
+#: ``front-right`` the quad's first two (a two-camera rig with an overlap, 40°..50°).
 _RIG_HFOV_DEG = 100.0
 _RIG_SIZE = (320, 240)
 _RIG_YAWS_DEG = {
     "quad": (("front", 0.0), ("right", 90.0), ("rear", 180.0), ("left", -90.0)),
     "front-back": (("front", 0.0), ("rear", 180.0)),
+    "front-right": (("front", 0.0), ("right", 90.0)),
 }
 
 

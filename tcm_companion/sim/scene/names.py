@@ -43,7 +43,25 @@ OBJECT_SCENARIO_NAMES: tuple[str, ...] = (
     "SKY2TREE",
     "MIXED",
 )
+#: Flights for camera rigs (``--rig quad``, issue 26): an object crossing from one camera's
+#: view into the next, one held in two cameras' overlap, a camera dying mid-flight.
+RIG_SCENARIO_NAMES: tuple[str, ...] = ("PASS", "OVERLAP", "CAMLOSS")
 #: Every scenario the simulator (and the mock autopilot) can fly.
-SCENARIO_NAMES: tuple[str, ...] = PAPER_SCENARIO_NAMES + OBJECT_SCENARIO_NAMES
+SCENARIO_NAMES: tuple[str, ...] = PAPER_SCENARIO_NAMES + OBJECT_SCENARIO_NAMES + RIG_SCENARIO_NAMES
 
-__all__ = ["OBJECT_SCENARIO_NAMES", "PAPER_SCENARIO_NAMES", "SCENARIO_NAMES"]
+#: The simulator's camera rigs (``sitl --rig``; :func:`~.cameras.rig_cameras` builds them).
+RIGS: tuple[str, ...] = ("panorama", "quad", "front-back", "front-right")
+
+#: Rig scenarios in which a camera of the rig stops delivering: scenario -> (camera name,
+#: seconds after the start of the flight). ``CAMLOSS``: the ``front`` camera (of the
+#: ``quad`` and ``front-back`` rigs) dies 8 s in.
+CAMERA_LOSS: dict[str, tuple[str, float]] = {"CAMLOSS": ("front", 8.0)}
+
+__all__ = [
+    "CAMERA_LOSS",
+    "OBJECT_SCENARIO_NAMES",
+    "PAPER_SCENARIO_NAMES",
+    "RIGS",
+    "RIG_SCENARIO_NAMES",
+    "SCENARIO_NAMES",
+]

@@ -23,6 +23,14 @@ Scenarios (``SCENARIO_NAMES``):
   (time to contact).
 - ``TWO``: a static ball and, 4 m along the track from it, an oscillating one (T90).
 
+Rig flights (``RIG_SCENARIO_NAMES``, for ``sitl --rig quad`` / ``front-back``; any camera
+sees them): ``PASS`` (the vehicle flies straight past a static ball 3 m to its right: the
+ball crosses from the front camera's view into the right one's and on into the rear
+one's), ``OVERLAP`` (a ball on a collision course from 45° right: inside the quad rig's
+front/right overlap throughout) and ``CAMLOSS`` (a static ball ahead-left, an oscillating
+one behind-right, the vehicle on the paper's back-and-forth track; the ``front`` camera
+dies 8 s in: :data:`~.names.CAMERA_LOSS`).
+
 Objects of other kinds (``OBJECT_SCENARIO_NAMES``; see ``docs/simulator.md``): the same
 flights with a car-sized box (``-BOX``), a person-sized upright cylinder (``-CYL``) or a
 small drone (a flat disc, ``-DISC``) instead of the ball — ``TS-``, ``T45-``, ``T90-`` of
@@ -45,7 +53,7 @@ import numpy as np
 
 from ...core.camera import Equirectangular
 from ...core.frames import FloatArray
-from .names import MAX_FLIGHT_S, OBJECT_SCENARIO_NAMES, SCENARIO_NAMES
+from .names import MAX_FLIGHT_S, OBJECT_SCENARIO_NAMES, RIG_SCENARIO_NAMES, SCENARIO_NAMES
 from .names import PAPER_SCENARIO_NAMES as PAPER_SCENARIO_NAMES  # re-exported
 from .world import (
     COLOURS,
@@ -377,6 +385,8 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
         raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIO_NAMES)}")
     if key in OBJECT_SCENARIO_NAMES:
         return _object_plan(key, duration_s, seed)
+    if key in RIG_SCENARIO_NAMES:
+        return _rig_plan(key, duration_s, seed)
     duration = float(duration_s) if duration_s is not None else _DEFAULT_DURATION_S[key]
     if not 0 < duration <= MAX_FLIGHT_S:
         raise ValueError(
@@ -714,3 +724,75 @@ def _object_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
         targets=targets,
         extras=extras,
     )
+
+
+# --------------------------------------------------------------------------------------
+# Rig flights (issue 26): crossing views, an overlap, a camera dying
+# --------------------------------------------------------------------------------------
+_RIG_DURATION_S = {"PASS": 10.0, "OVERLAP": 6.5, "CAMLOSS": 16.0}
+_PASS_SPEED_MPS = 1.5
+_PASS_START_ALONG_M = -7.5
+_PASS_BALL_RIGHT_M = 3.0
+_OVERLAP_START_RANGE_M = 15.0
+
+
+def _rig_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
+    """The design of one of ``RIG_SCENARIO_NAMES`` (see the module docstring)."""
+    duration = float(duration_s) if duration_s is not None else _RIG_DURATION_S[key]
+    if not 0 < duration <= MAX_FLIGHT_S:
+        raise ValueError(
+            f"duration_s must be positive and at most {MAX_FLIGHT_S:g} s, got {duration_s!r}"
+        )
+    rng = np.random.default_rng(np.random.SeedSequence([31337, seed]))
+    yaw_terms, roll_terms, pitch_terms = _attitude_terms(rng)
+    wobble = _wobble(rng)
+    phase = float(rng.uniform(0, 2 * math.pi))
+    ax, rt = track_axes(HEADING_RAD)
+    if key == "CAMLOSS":
+        track = SineTerm(vec3(TRACK_HALF_LENGTH_M * ax), TRACK_FREQ_HZ, 0.0)
+        path = Trajectory(_track_point(0.0, 0.0, -ALTITUDE_M), terms=(track, *wobble))
+    else:
+        start_along = _PASS_START_ALONG_M if key == "PASS" else -5.25
+        path = Trajectory(
+            _track_point(start_along, 0.0, -ALTITUDE_M), vec3(_PASS_SPEED_MPS * ax), wobble
+        )
+    vehicle = VehicleMotion(path, HEADING_RAD, yaw_terms, roll_terms, pitch_terms)
+    balls: tuple[Ball, ...]
+    if key == "PASS":
+        balls = (Ball(Trajectory.static(_track_point(0.0, _PASS_BALL_RIGHT_M, -1.5))),)
+        desc = (
+            "vehicle flying straight at 1.5 m/s past a static ball 3 m to its right: the ball"
+            " crosses from the front view to the right and the rear (quad rig)"
+        )
+    elif key == "OVERLAP":
+        # Ball speed across the track = the vehicle's along it: bearing 45° right, constant.
+        v_veh = _PASS_SPEED_MPS * ax
+        v_ball = -_PASS_SPEED_MPS * rt
+        t_contact = _OVERLAP_START_RANGE_M / float(np.linalg.norm(v_veh - v_ball))
+        if duration > t_contact - 0.5:
+            raise FlightTooLong(key, t_contact - 0.5, f"contact at {t_contact:.2f} s")
+        meet = np.asarray(path.origin_ned_m) + v_veh * t_contact
+        balls = (Ball(Trajectory.linear(vec3(meet - v_ball * t_contact), vec3(v_ball))),)
+        desc = (
+            "ball on a collision course from 45° right, range 15 m to 1 m: in the quad rig's"
+            " front/right overlap throughout"
+        )
+    else:  # CAMLOSS
+        balls = (
+            Ball(Trajectory.static(_track_point(6.0, -2.5, -1.0)), object_id=1),
+            Ball(
+                Trajectory.oscillation(
+                    _track_point(-6.0, 2.0, -1.0),
+                    _track_dir(0.0, 1.0),
+                    BALL_AMPLITUDE_M,
+                    BALL_FREQ_HZ,
+                    phase,
+                ),
+                object_id=2,
+            ),
+        )
+        desc = (
+            "a static ball ahead-left (front camera) and one oscillating behind-right (rear"
+            " camera) of the back-and-forth track; the front camera dies 8 s in"
+        )
+    return FlightPlan(key, desc, duration, vehicle, balls)

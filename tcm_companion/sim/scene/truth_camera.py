@@ -37,7 +37,7 @@ if TYPE_CHECKING:
     from .render import Renderer
     from .scenarios import FlightPlan
 
-__all__ = ["SimulatedCamera", "TruthFn", "no_sleep"]
+__all__ = ["DyingCamera", "SimulatedCamera", "TruthFn", "no_sleep"]
 
 
 def no_sleep(seconds: float) -> None:
@@ -199,3 +199,41 @@ class SimulatedCamera(FrameSource):
 
     def close(self) -> None:
         self._open = False
+
+
+class DyingCamera(FrameSource):
+    """``inner`` until ``dies_at_us`` on ``clock_us`` (µs), then gone for good: ``read()``
+    raises :class:`CameraGone` (a frame whose capture time is at or after the instant is
+    not delivered) and every later ``open()`` fails, so the reader keeps reconnecting with
+    backoff and the daemon sees the camera's input go stale (SITL's "a camera dies")."""
+
+    live = True
+
+    def __init__(self, inner: FrameSource, dies_at_us: int, clock_us: Callable[[], int]) -> None:
+        super().__init__(inner.name, inner.width, inner.height)
+        self.inner = inner
+        self.dies_at_us = int(dies_at_us)
+        self.clock_us = clock_us
+
+    @property
+    def dead(self) -> bool:
+        return int(self.clock_us()) >= self.dies_at_us
+
+    def open(self) -> None:
+        if self.dead:
+            raise CameraError(f"camera {self.name}: dead (simulated loss)")
+        self.inner.open()
+
+    def read(self) -> tuple[np.ndarray | None, int | None]:
+        if self.dead:
+            raise CameraGone(f"camera {self.name}: stopped delivering (simulated loss)")
+        image, t_us = self.inner.read()
+        if t_us is not None and t_us >= self.dies_at_us:
+            raise CameraGone(f"camera {self.name}: stopped delivering (simulated loss)")
+        return image, t_us
+
+    def interrupt(self) -> None:
+        self.inner.interrupt()
+
+    def close(self) -> None:
+        self.inner.close()

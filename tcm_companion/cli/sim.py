@@ -11,7 +11,7 @@ import argparse
 import sys
 from typing import Any
 
-from ..sim.scene.names import SCENARIO_NAMES
+from ..sim.scene.names import RIGS, SCENARIO_NAMES
 from .common import (
     CAMERA_PRESETS,
     FORCE_HELP,
@@ -33,9 +33,8 @@ def _camera_arg(args: argparse.Namespace) -> Any:
     return preset_camera(args.camera, args.resolution, args.name)
 
 
-#: ``sim export --rig`` / ``eval --rig``: the simulator's camera rigs
-#: (``tcm_companion.sim.scene.cameras.RIGS``, named here to keep the parser light).
-RIG_CHOICES = ("panorama", "quad", "front-back")
+#: ``sim export --rig`` / ``eval --rig``: the simulator's camera rigs (``sitl --rig``'s too).
+RIG_CHOICES = RIGS
 
 
 def _cmd_sim_export_rig(args: argparse.Namespace) -> int:

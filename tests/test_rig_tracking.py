@@ -112,6 +112,42 @@ def test_an_object_two_cameras_see_is_one_rig_track_reported_once_per_cycle() ->
     assert rig.stats["merged"] == 20 and rig.stats["handovers"] == 1
 
 
+def no_attitude(obj: ObjectResult) -> ObjectResult:
+    """``obj`` as a frame without attitude reports it: no NED bearing, unknown."""
+    nan = np.full(3, np.nan)
+    return replace(obj, bearing_ned=nan, azimuth_ned_rad=math.nan, elevation_ned_rad=math.nan)
+
+
+def test_a_track_first_seen_without_attitude_joins_the_object_once_it_has_a_bearing() -> None:
+    """The run's first frames have no attitude: each camera's track of the object in the
+    overlap started a rig track with no bearing. Once both have bearings they are one
+    object, reported once per cycle (the tracks stayed apart: two statuses a cycle); a
+    track alone keeps the rig id it was given."""
+    rig = RigTracker(FRONT_RIGHT, CONFIG)
+    reports: list[list[int]] = []
+    for i in range(20):
+        t = i * PERIOD_US
+        b = az(44.0 + 0.05 * i)
+        a, c = view(FRONT_RIGHT[0], 7, b), view(FRONT_RIGHT[1], 3, b)
+        if i < 5:
+            a, c = no_attitude(a), no_attitude(c)
+        fa = rig.fuse(0, frame(i, t, a))
+        fc = rig.fuse(1, frame(i, t, c))
+        reports.append([o.track_id for o in fa.objects] + [o.track_id for o in fc.objects])
+    assert all(len(r) == 2 for r in reports[:5])  # nothing to tell them apart by yet
+    assert all(len(r) == 1 for r in reports[6:]), reports
+    assert len({r[0] for r in reports[6:]}) == 1
+    lone = RigTracker(FRONT_RIGHT, CONFIG)
+    ids = [
+        [o.track_id for o in lone.fuse(0, frame(i, i * PERIOD_US, obj)).objects]
+        for i, obj in enumerate(
+            [no_attitude(view(FRONT_RIGHT[0], 4, az(-20.0)))] * 3
+            + [view(FRONT_RIGHT[0], 4, az(-20.0))] * 5
+        )
+    ]
+    assert ids == [[1]] * 8
+
+
 def test_the_better_placed_view_measures_and_a_small_wobble_does_not_flap() -> None:
     rig = RigTracker(FRONT_RIGHT, CONFIG)
     measured_by: list[int] = []

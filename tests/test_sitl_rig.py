@@ -271,12 +271,6 @@ def test_the_overlap_ball_is_scored_once_per_cycle(
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="core/rig.py gives a per-camera track first seen without a NED bearing (no"
-    " attitude yet: the run's first frames) a rig track of its own and never associates it"
-    " later, so the ball both cameras see from the start stays two tracks",
-)
 def test_the_overlap_ball_gets_one_status_per_cycle(
     overlap_flight: tuple[SitlReport, MockAutopilot],
 ) -> None:

@@ -228,8 +228,20 @@ class RigTracker:
             for o in result.objects
             if (k, o.track_id) not in self._binding and (k, o.track_id) not in self._retired
         ]
-        if new:
-            self._associate(k, new, result.objects, t_us)
+        # A track bound before it had a NED bearing (the frames before the first attitude)
+        # has a rig track with no history, which no other camera's track could join: once
+        # it has a bearing it is associated like a new one, and keeps its rig track (and
+        # id) when nothing matches.
+        orphans = [
+            o
+            for o in result.objects
+            if (k, o.track_id) in self._binding
+            and o.detected
+            and _finite(o.bearing_ned)
+            and self._orphaned(self._tracks[self._binding[(k, o.track_id)]], k)
+        ]
+        if new or orphans:
+            self._associate(k, new, result.objects, t_us, orphans)
         out: list[ObjectResult] = []
         for obj in result.objects:
             if (k, obj.track_id) in self._retired:
@@ -328,11 +340,24 @@ class RigTracker:
         rt.cameras.add(camera_id)
         self._binding[(camera_id, track_id)] = rt.rig_id
 
+    @staticmethod
+    def _orphaned(rt: _RigTrack, k: int) -> bool:
+        """Rig track ``rt`` never had a NED bearing and only camera ``k``'s track is bound
+        to it: it was started from frames without attitude."""
+        return not rt.history and set(rt.bound) == {k}
+
     def _associate(
-        self, k: int, new: list[ObjectResult], now: Sequence[ObjectResult], t_us: int
+        self,
+        k: int,
+        new: list[ObjectResult],
+        now: Sequence[ObjectResult],
+        t_us: int,
+        orphans: Sequence[ObjectResult] = (),
     ) -> None:
         """Bind camera ``k``'s tracks seen for the first time to rig tracks (the
-        Hungarian assignment over bearing and size), or start rig tracks for them."""
+        Hungarian assignment over bearing and size), or start rig tracks for them;
+        ``orphans`` (:meth:`_orphaned` rig tracks' tracks) move to a rig track they match
+        and otherwise stay where they are."""
         cfg = self.config
         # A rig track already bound to a track of this camera is a candidate only when
         # that track lost the object this frame (the camera's tracker started a new one,
@@ -343,7 +368,7 @@ class RigTracker:
             for rt in self._tracks.values()
             if rt.history and (k not in rt.bound or not detected.get(rt.bound[k], False))
         ]
-        objs = [o for o in new if o.detected and _finite(o.bearing_ned)]
+        objs = [o for o in [*new, *orphans] if o.detected and _finite(o.bearing_ned)]
         assigned: set[int] = set()
         if cands and objs:
             pred = np.array([rt.predict_bearing_ned(t_us) for rt in cands])
@@ -380,6 +405,8 @@ class RigTracker:
                 rt, obj = cands[r], objs[c]
                 if k not in rt.cameras:
                     self.stats["handovers"] += 1  # another camera's object, now in this one
+                if (k, obj.track_id) in self._binding:  # an orphan: its empty rig track goes
+                    self._drop(self._tracks[self._binding[(k, obj.track_id)]])
                 old = rt.bound.get(k)
                 if old is not None:
                     # The camera's old track of the object coasts out, unreported.

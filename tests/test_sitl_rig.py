@@ -234,12 +234,6 @@ def test_the_crossing_ball_keeps_one_track_id(
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="when the rig's measuring camera switches from front to right (3.1 s) it reports"
-    " the right camera's young track's own looming: collision course, TTC 0.9-1.5 s,"
-    " ttc_confidence 83%, for the PASS ball 3 m to the side (the mock brakes on it when let)",
-)
 def test_the_crossing_ball_raises_no_collision_alarm(
     pass_flight: tuple[SitlReport, MockAutopilot],
 ) -> None:

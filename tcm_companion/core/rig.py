@@ -33,6 +33,7 @@ from .classify import Classification, classify_pair, decide, hold
 from .frames import FloatArray, angle_between, normalize, rotate_by_vector
 from .pipeline import FrameResult, ObjectResult, PipelineConfig
 from .timebase import jitter_slack_s, median_period_s
+from .ttc import estimate_ttc
 
 
 @dataclass(frozen=True)
@@ -264,6 +265,7 @@ class RigTracker:
             if obj.label:
                 rt.label = obj.label
             obj = self._decided(rt, k, obj, result)
+            obj = self._looming(rt, obj, t_us)
             out.append(replace(obj, track_id=rt.rig_id))
         return replace(result, objects=tuple(out))
 
@@ -484,6 +486,44 @@ class RigTracker:
             return obj  # as the pipeline: stationary only once seen for the full interval
         rt.decision = decided
         return replace(obj, state=decided.state, reason=decided.reason, classification=decided)
+
+    def _looming(self, rt: _RigTrack, obj: ObjectResult, t_us: int) -> ObjectResult:
+        """The object with its time to contact fitted over the rig track's whole views
+        (any camera's, captured within the looming window up to ``t_us``; of views
+        captured together the best-placed), when they are enough for a fit: a camera's
+        own track of an object coming into its view from a neighbour's measures it cut
+        by the image border, growing as it comes in, which its looming fit reads as an
+        approach (a ball passing 3 m to the side read TTC 0.9 s, collision course, at
+        the switch between two cameras). Too few whole views: the camera's own fit."""
+        if not (obj.detected and _finite(obj.bearing_ned)):
+            return obj
+        ttc_cfg = self.pipeline_config.ttc
+        same_us = round(self._slack_s(rt) * 1e6)
+        window_us = round(ttc_cfg.window_s * 1e6) + same_us
+        views: list[_RigObservation] = []
+        for o in rt.history:
+            if not o.whole or o.t_us > t_us or t_us - o.t_us >= window_us:
+                continue
+            if views and o.t_us - views[-1].t_us <= same_us:
+                if o.margin_rad > views[-1].margin_rad:
+                    views[-1] = o  # one view per capture time: the better-placed
+                continue
+            views.append(o)
+        if len(views) < ttc_cfg.min_samples:
+            return obj
+        est = estimate_ttc(
+            np.array([o.t_us * 1e-6 for o in views]),
+            np.array([o.angular_radius_rad for o in views]),
+            np.array([o.bearing_ned for o in views]),
+            ttc_cfg,
+        )
+        return replace(
+            obj,
+            ttc_s=est.ttc_s,
+            collision_course=est.collision_course,
+            miss_radii=est.miss_radii,
+            ttc_confidence=est.confidence,
+        )
 
     def _slack_s(self, rt: _RigTrack) -> float:
         """A quarter of the frame period of the track's views (capture jitter)."""

@@ -102,3 +102,28 @@ def test_position_interpolation_and_extrapolation() -> None:
     pos, _ = buf.position_at(OFFSET_US + 100_950_000)
     assert pos[0] == pytest.approx(0.95)
     assert buf.position_at(OFFSET_US + 102_000_000) is None
+
+
+def test_queries_as_of_a_receive_time_see_only_the_samples_received_by_then() -> None:
+    """``received_by_us`` (process replay of a frame stepped in a worker): the attitude a
+    frame got when its step began, although the buffer has been given later samples."""
+    stream = attitude_stream(seconds=1.0, yaw_rate=2.0)
+    early = TelemetryBuffer()
+    early.extend(stream[:20])
+    full = TelemetryBuffer()
+    full.extend(stream)
+    # A frame captured just after the 20th sample: extrapolated from the first 20 then,
+    # interpolated with the later ones now.
+    t_frame = int(early.clock.to_companion_us(stream[19].time_boot_us + 10_000))
+    then = early.attitude_at(t_frame)
+    assert then is not None
+    now = full.attitude_at(t_frame)
+    assert now is not None and not np.allclose(now, then, atol=1e-12)
+    full.received_by_us = stream[19].recv_us
+    # The two buffers' clock fits differ by a few µs: ask both at the same boot time.
+    tb = t_frame - early.clock.offset_us
+    as_of = full.attitude_at(int(tb + full.clock.offset_us))
+    assert as_of is not None and np.allclose(as_of, then, atol=1e-9)
+    full.received_by_us = None
+    again = full.attitude_at(t_frame)
+    assert again is not None and np.allclose(again, now, atol=1e-12)

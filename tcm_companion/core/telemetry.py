@@ -146,22 +146,34 @@ class _Series:
     def __init__(self, maxlen: int) -> None:
         self.t_boot: deque[int] = deque(maxlen=maxlen)
         self.values: deque[object] = deque(maxlen=maxlen)
+        self.recv: deque[int] = deque(maxlen=maxlen)  # companion receive times
 
-    def add(self, t_boot: int, value: object) -> bool:
+    def add(self, t_boot: int, value: object, recv_us: int) -> bool:
         """Append in time order; refuse a sample not newer than the last one."""
         if self.t_boot and t_boot <= self.t_boot[-1]:
             return False
         self.t_boot.append(t_boot)
         self.values.append(value)
+        self.recv.append(recv_us)
         return True
 
     def clear(self) -> None:
         self.t_boot.clear()
         self.values.clear()
+        self.recv.clear()
 
-    def bracket(self, t_boot: float) -> tuple[int, int] | None:
-        """Indices ``(i, j)`` of the samples around ``t_boot`` (j = i + 1), or the last two."""
+    def received_by(self, cutoff_us: int | None) -> int:
+        """How many of the oldest samples had been received by ``cutoff_us`` (all: None)."""
         n = len(self.t_boot)
+        if cutoff_us is None:
+            return n
+        while n and self.recv[n - 1] > cutoff_us:
+            n -= 1
+        return n
+
+    def bracket(self, t_boot: float, n: int) -> tuple[int, int] | None:
+        """Indices ``(i, j)`` of the samples around ``t_boot`` (j = i + 1), or the last
+        two, among the oldest ``n``."""
         if n == 0:
             return None
         if n == 1:
@@ -200,6 +212,11 @@ class TelemetryBuffer:
         self.position_max_gap_us = position_max_gap_us
         self.position_max_extrapolation_us = position_max_extrapolation_us
         self.health = TelemetryHealth()
+        #: Queries see only the samples received by this companion time (None: all). Process
+        #: replay sets it to a frame's processing time: a frame stepped in a worker process
+        #: is logged when it comes back, after frames of other cameras requested later,
+        #: whose replay has already handed the buffer the samples received meanwhile.
+        self.received_by_us: int | None = None
 
     # -- input ------------------------------------------------------------------------
     def add(self, sample: TelemetrySample) -> bool:
@@ -229,7 +246,7 @@ class TelemetryBuffer:
             if isinstance(sample, AttitudeSample)
             else sample
         )
-        if not series.add(sample.time_boot_us, value):
+        if not series.add(sample.time_boot_us, value, sample.recv_us):
             self.health.rejected[f"{kind} time not increasing"] += 1
             return False
         if kind == "attitude":
@@ -257,7 +274,7 @@ class TelemetryBuffer:
         if not self.clock.ready:
             return None
         tb = self._boot_time(t_us)
-        br = self._att.bracket(tb)
+        br = self._att.bracket(tb, self._att.received_by(self.received_by_us))
         if br is None:
             return None
         i, j = br
@@ -279,7 +296,7 @@ class TelemetryBuffer:
         if not self.clock.ready:
             return None
         tb = self._boot_time(t_us)
-        br = self._pos.bracket(tb)
+        br = self._pos.bracket(tb, self._pos.received_by(self.received_by_us))
         if br is None:
             return None
         i, j = br

@@ -695,10 +695,14 @@ class Companion:
         inputs' arrival times). Nothing is sent."""
         cam = self.cameras[camera_id]
         self.clock.force(clock_offset_us)
+        # The telemetry the daemon had when it started on the frame (a worker's frame is
+        # logged when it came back: the samples received meanwhile are in already).
+        self.telemetry.received_by_us = int(process_mono_us)
         try:
             result = self._step(cam, image, capture_mono_us, process_mono_us)
         finally:
             self.clock.force(None)
+            self.telemetry.received_by_us = None
         result = self._fused(cam, result, process_mono_us)
         # What the live box feed's later messages are judged against (late or not).
         cam.last_processed_capture_mono_us = capture_mono_us

@@ -21,7 +21,7 @@ Every time is µs on the companion monotonic clock (``_mono_us``) the driver run
 from __future__ import annotations
 
 import logging
-from collections import Counter
+from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
@@ -222,7 +222,10 @@ class CompanionHost:
         self.stage_ms: dict[str, SampleRing] = {
             k: SampleRing(STAT_SAMPLES) for k in ("handoff", "queue", "pipeline", "send")
         }
-        self.camera_latencies_ms = [SampleRing(CAMERA_STAT_SAMPLES) for _ in self.cameras]
+        # By camera id (a host given no camera descriptions, as tests build one, still counts).
+        self.camera_latencies_ms: defaultdict[int, SampleRing] = defaultdict(
+            lambda: SampleRing(CAMERA_STAT_SAMPLES)
+        )
         self.watchdog_pings = 0
         self.watchdog_withheld = 0
         self.health_checks = 0
@@ -433,8 +436,8 @@ class CompanionHost:
         comp = self.companion
         captured = sum(s.captured for s in camera_stats.values())
         per_camera: dict[str, dict[str, float]] = {}
-        for cam, lat in zip(comp.cameras, self.camera_latencies_ms, strict=True):
-            values = lat.tolist()
+        for cam in comp.cameras:
+            values = self.camera_latencies_ms[cam.camera_id].tolist()
             per_camera[cam.name] = {
                 "processed": cam.frames_processed,
                 "dropped": cam.frames_dropped,

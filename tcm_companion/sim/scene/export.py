@@ -264,16 +264,34 @@ def export_scenario(
     writer.write_truth(sim.truth)
     writer.remove_stale_frames(sim.n_frames)
 
-    det_config: DetectorSimConfig | None = None
+    det_config = detector_config(detections)
+    if det_config is None:
+        writer.remove_detections()
+    write_frames(sim, writer, det_config, progress)
+    return writer.root
+
+
+def detector_config(detections: DetectorSimConfig | bool | None) -> DetectorSimConfig | None:
+    """What ``detections`` of :func:`export_scenario` asks for: the simulated detector's
+    settings (``True``: the defaults), or None for no ``detections.csv``."""
     if detections is True:
         from .detector_sim import DetectorSimConfig
 
-        det_config = DetectorSimConfig()
-    elif detections is not None and detections is not False:
-        det_config = detections
-    if det_config is None:
-        writer.remove_detections()
+        return DetectorSimConfig()
+    if detections is None or detections is False:
+        return None
+    return detections
 
+
+def write_frames(
+    sim: SimulatedScenario,
+    writer: ScenarioWriter,
+    det_config: DetectorSimConfig | None,
+    progress: bool | None = None,
+) -> None:
+    """Render every frame of ``sim`` into ``writer`` (with a progress bar when
+    ``progress``; default: above 50 frames) and, with ``det_config``, the simulated
+    detector's boxes from the visible coverage rendered with each frame."""
     show = progress if progress is not None else sim.n_frames > 50
     indices: Iterable[int] = range(sim.n_frames)
     if show:
@@ -294,4 +312,3 @@ def export_scenario(
         from .detector_sim import simulate_detections
 
         writer.write_detections(simulate_detections(sim, det_config, truth_boxes))
-    return writer.root

@@ -11,7 +11,7 @@ form of ``tcm-scenario/1`` (docs/scenario-format.md).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,7 +19,7 @@ from ...core.camera import CameraModel
 from ...core.telemetry import AttitudeSample, PositionSample
 from ...io.scenario_writer import RigWriter, rig_scenario_toml
 from .cameras import rig_cameras
-from .export import SimulatedScenario, make_scenario
+from .export import SimulatedScenario, detector_config, make_scenario, write_frames
 from .scenario_io import targets_toml
 
 if TYPE_CHECKING:
@@ -103,13 +103,7 @@ def export_rig(
     extra = targets_toml(rig.plan.objects)
     writer.write_toml(rig_scenario_toml(rig.name, rig.description, cams, extra=extra))
     writer.write_telemetry(rig.tlog_bytes)
-    det_config: DetectorSimConfig | None = None
-    if detections is True:
-        from .detector_sim import DetectorSimConfig
-
-        det_config = DetectorSimConfig()
-    elif detections is not None and detections is not False:
-        det_config = detections
+    det_config = detector_config(detections)
     show = progress if progress is not None else rig.n_frames > 50
     for cam_name, sim in zip(rig.camera_names, rig.cameras):
         cw = writer.camera(cam_name)
@@ -118,23 +112,5 @@ def export_rig(
         cw.remove_stale_frames(sim.n_frames)
         if det_config is None:
             cw.remove_detections()
-        indices: Iterable[int] = range(sim.n_frames)
-        if show:
-            from ...io.progress import track
-
-            indices = track(indices, sim.n_frames, f"rendering {sim.name}")
-        truth_boxes = []
-        for i in indices:
-            if det_config is None:
-                img = sim.read_frame(i)
-            else:
-                from .detector_sim import true_boxes_from_coverage
-
-                img, cov = sim.read_frame_with_coverage(i)
-                truth_boxes.append(true_boxes_from_coverage(sim, i, cov))
-            cw.write_frame(i, img)
-        if det_config is not None:
-            from .detector_sim import simulate_detections
-
-            cw.write_detections(simulate_detections(sim, det_config, truth_boxes))
+        write_frames(sim, cw, det_config, show)
     return writer.root

@@ -375,6 +375,19 @@ def _attitude_terms(
     return yaw, turbulence(), turbulence()
 
 
+def _duration_and_rng(
+    duration_s: float | None, default_s: float, seed: int
+) -> tuple[float, np.random.Generator]:
+    """A flight's duration (``duration_s``, else the scenario's ``default_s``; checked
+    against :data:`MAX_FLIGHT_S`) and the generator of its ``seed``'s variations."""
+    duration = float(duration_s) if duration_s is not None else default_s
+    if not 0 < duration <= MAX_FLIGHT_S:
+        raise ValueError(
+            f"duration_s must be positive and at most {MAX_FLIGHT_S:g} s, got {duration_s!r}"
+        )
+    return duration, np.random.default_rng(np.random.SeedSequence([31337, seed]))
+
+
 def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> FlightPlan:
     """The design of scenario ``name`` (one of ``SCENARIO_NAMES``).
 
@@ -387,12 +400,7 @@ def flight_plan(name: str, duration_s: float | None = None, seed: int = 0) -> Fl
         return _object_plan(key, duration_s, seed)
     if key in RIG_SCENARIO_NAMES:
         return _rig_plan(key, duration_s, seed)
-    duration = float(duration_s) if duration_s is not None else _DEFAULT_DURATION_S[key]
-    if not 0 < duration <= MAX_FLIGHT_S:
-        raise ValueError(
-            f"duration_s must be positive and at most {MAX_FLIGHT_S:g} s, got {duration_s!r}"
-        )
-    rng = np.random.default_rng(np.random.SeedSequence([31337, seed]))
+    duration, rng = _duration_and_rng(duration_s, _DEFAULT_DURATION_S[key], seed)
     yaw_terms, roll_terms, pitch_terms = _attitude_terms(rng)
     wobble = _wobble(rng)
     ball_phase = float(rng.uniform(0, 2 * math.pi))
@@ -530,12 +538,7 @@ def _dark_building(
 
 def _object_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
     """The design of one of ``OBJECT_SCENARIO_NAMES`` (see :func:`flight_plan`)."""
-    duration = float(duration_s) if duration_s is not None else _OBJECT_DURATION_S.get(key, 40.0)
-    if not 0 < duration <= MAX_FLIGHT_S:
-        raise ValueError(
-            f"duration_s must be positive and at most {MAX_FLIGHT_S:g} s, got {duration_s!r}"
-        )
-    rng = np.random.default_rng(np.random.SeedSequence([31337, seed]))
+    duration, rng = _duration_and_rng(duration_s, _OBJECT_DURATION_S.get(key, 40.0), seed)
     yaw_terms, roll_terms, pitch_terms = _attitude_terms(rng)
     wobble = _wobble(rng)
     phase = float(rng.uniform(0, 2 * math.pi))
@@ -738,12 +741,7 @@ _OVERLAP_START_RANGE_M = 15.0
 
 def _rig_plan(key: str, duration_s: float | None, seed: int) -> FlightPlan:
     """The design of one of ``RIG_SCENARIO_NAMES`` (see the module docstring)."""
-    duration = float(duration_s) if duration_s is not None else _RIG_DURATION_S[key]
-    if not 0 < duration <= MAX_FLIGHT_S:
-        raise ValueError(
-            f"duration_s must be positive and at most {MAX_FLIGHT_S:g} s, got {duration_s!r}"
-        )
-    rng = np.random.default_rng(np.random.SeedSequence([31337, seed]))
+    duration, rng = _duration_and_rng(duration_s, _RIG_DURATION_S[key], seed)
     yaw_terms, roll_terms, pitch_terms = _attitude_terms(rng)
     wobble = _wobble(rng)
     phase = float(rng.uniform(0, 2 * math.pi))

@@ -131,21 +131,20 @@ def rig_scenario_toml(
     return "\n".join(lines) + "\n" + extra
 
 
-class RigWriter:
-    """A rig scenario directory being written at ``root``: ``scenario.toml`` and
-    ``telemetry.tlog`` at the top, each camera's files through :meth:`camera` (a
-    :class:`ScenarioWriter` of ``cameras/NAME``)."""
+class _ScenarioFiles:
+    """What a scenario directory and a rig's have at their top: ``scenario.toml`` and
+    ``telemetry.tlog`` (a rig's is the whole rig's), at ``root`` (made if missing)."""
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
 
     def write_toml(self, text: str) -> None:
-        """``scenario.toml`` (its text: :func:`rig_scenario_toml`)."""
+        """``scenario.toml`` (its text: :func:`scenario_toml`, :func:`rig_scenario_toml`)."""
         (self.root / "scenario.toml").write_text(text, encoding="utf-8")
 
     def write_telemetry(self, data: bytes) -> None:
-        """``telemetry.tlog`` (the whole rig's) from a ``.tlog``'s bytes."""
+        """``telemetry.tlog`` from a ``.tlog``'s bytes."""
         (self.root / "telemetry.tlog").write_bytes(data)
 
     def write_telemetry_records(self, records: Iterable[tuple[int, bytes]]) -> None:
@@ -155,24 +154,26 @@ class RigWriter:
             for recv_us, frame in records:
                 writer.write(recv_us, frame)
 
+
+class RigWriter(_ScenarioFiles):
+    """A rig scenario directory being written at ``root``: ``scenario.toml`` and
+    ``telemetry.tlog`` at the top, each camera's files through :meth:`camera` (a
+    :class:`ScenarioWriter` of ``cameras/NAME``)."""
+
     def camera(self, camera_name: str) -> ScenarioWriter:
         """The writer of camera ``camera_name``'s frames, ``frames.csv``, ``truth.csv``
         and ``detections.csv`` (in ``cameras/NAME``)."""
         return ScenarioWriter(self.root / rig_camera_dir(camera_name))
 
 
-class ScenarioWriter:
+class ScenarioWriter(_ScenarioFiles):
     """One ``tcm-scenario/1`` directory being written at ``root`` (made, with its
     ``frames/``, if missing)."""
 
     def __init__(self, root: str | Path) -> None:
-        self.root = Path(root)
+        super().__init__(root)
         self.frames_dir = self.root / "frames"
-        self.frames_dir.mkdir(parents=True, exist_ok=True)
-
-    def write_toml(self, text: str) -> None:
-        """``scenario.toml`` (its text: :func:`scenario_toml`)."""
-        (self.root / "scenario.toml").write_text(text, encoding="utf-8")
+        self.frames_dir.mkdir(exist_ok=True)
 
     def write_frame(self, index: int, image: np.ndarray) -> None:
         """Frame ``index`` (BGR uint8) as ``frames/NNNNNN.png``; OSError if it cannot."""
@@ -186,17 +187,6 @@ class ScenarioWriter:
             fh.write(",".join(FRAMES_HEADER) + "\n")
             for i, t in enumerate(times_us):
                 fh.write(f"{i},{int(t)}\n")
-
-    def write_telemetry(self, data: bytes) -> None:
-        """``telemetry.tlog`` from a ``.tlog``'s bytes."""
-        (self.root / "telemetry.tlog").write_bytes(data)
-
-    def write_telemetry_records(self, records: Iterable[tuple[int, bytes]]) -> None:
-        """``telemetry.tlog`` from ``(receive time µs, packed MAVLink frame)`` pairs."""
-        with open(self.root / "telemetry.tlog", "wb") as fh:
-            writer = TlogWriter(fh)
-            for recv_us, frame in records:
-                writer.write(recv_us, frame)
 
     def write_truth(self, truth: Truth) -> None:
         """``truth.csv``: one row per frame and object (NED metres, 6 decimals)."""
